@@ -1,0 +1,180 @@
+"""The three contact models of the paper, each a small unit behind one interface.
+
+A contact model decides how the virtual normal force gamma (N) between the two
+contact candidates is produced. In simulation it is always the force of one
+MuJoCo actuator, `virtual_contact`, whose transmission (built by the scene)
+applies +gamma along the object's inward face normal at the object candidate
+and the reaction at the robot candidate. What differs is the actuator's
+control and law:
+
+- SCM:  control = k, fixed;                gamma = k exp(-(c/k) phi)   (native plugin)
+- VSCM: control = k_l, one per knot;       gamma = k exp(-(c/k) phi)   (native plugin), 0 at k = 0
+- CCCM: control = gamma_l, one per knot;   gamma = control              (plain MuJoCo force actuator)
+
+Parameters (k, c, bounds) come from config/planner.yaml; nothing here is a
+literal default.
+"""
+from __future__ import annotations
+
+import abc
+from typing import Any, ClassVar, Mapping
+
+import mujoco
+import numpy as np
+
+from cito_ros.config import load_parameters, require_finite
+
+CONTACT_PLUGIN = "cito.virtual_contact"
+
+
+class ContactModel(abc.ABC):
+    """Interface of a contact model (see the module docstring)."""
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    #: Meaning of the contact actuator's control, with its unit.
+    control_name: ClassVar[str]
+
+    @abc.abstractmethod
+    def control_range(self) -> tuple[float, float]:
+        """Admissible range of the contact actuator's control."""
+
+    @abc.abstractmethod
+    def default_control(self) -> float:
+        """Contact control used when a caller gives none (and the optimizer's start)."""
+
+    @abc.abstractmethod
+    def gamma(self, signed_distance_m: np.ndarray, control: np.ndarray) -> np.ndarray:
+        """Virtual normal force (N): the pure-Python law, the oracle of the native one."""
+
+    @abc.abstractmethod
+    def configure_actuator(self, spec: mujoco.MjSpec, actuator: mujoco.MjsActuator) -> None:
+        """Make the (already placed) contact actuator compute this model's gamma natively."""
+
+    def stiffness(self, control: np.ndarray) -> np.ndarray | None:
+        """Stiffness k (N) per entry of `control`, or None for a model without one."""
+        return None
+
+    def validate_control(self, control: np.ndarray) -> np.ndarray:
+        """`control` as a float array, or a ValueError saying what is wrong with it."""
+        control = np.asarray(control, dtype=float)
+        if not np.all(np.isfinite(control)):
+            raise ValueError(f"{self.name}: {self.control_name} contains NaN or Inf")
+        if np.any(control < 0):
+            raise ValueError(f"{self.name}: {self.control_name} must be non-negative, got {control[control < 0][0]}")
+        low, high = self.control_range()
+        outside = (control < low) | (control > high)
+        if np.any(outside):
+            raise ValueError(self._out_of_range(control[outside][0]))
+        return control
+
+    def _out_of_range(self, value: float) -> str:
+        low, high = self.control_range()
+        return f"{self.name}: {self.control_name} must lie in [{low}, {high}], got {value}"
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name})"
+
+
+class _ExponentialLaw(ContactModel):
+    """gamma = k exp(-(c/k) phi), computed natively by the cito.virtual_contact plugin."""
+
+    def __init__(self, curvature: float):
+        self.curvature = require_finite(f"{self.name}: curvature", curvature, positive=True)
+
+    def gamma(self, signed_distance_m, control):
+        phi = np.asarray(signed_distance_m, dtype=float)
+        k = np.asarray(control, dtype=float)
+        positive = k > 0
+        safe_k = np.where(positive, k, 1.0)
+        return np.where(positive, k * np.exp(-(self.curvature / safe_k) * phi), 0.0)
+
+    def stiffness(self, control):
+        return np.asarray(control, dtype=float)
+
+    def configure_actuator(self, spec, actuator):
+        spec.activate_plugin(CONTACT_PLUGIN)
+        instance = spec.add_plugin(name=f"{self.name}_contact_law", plugin_name=CONTACT_PLUGIN, active=True)
+        instance.config = {"curvature": repr(self.curvature)}
+        actuator.plugin = instance
+
+
+class SmoothContactModel(_ExponentialLaw):
+    name = "scm"
+    description = "smooth contact model, fixed stiffness"
+    control_name = "stiffness k (N)"
+
+    def __init__(self, stiffness: float, curvature: float):
+        super().__init__(curvature)
+        self.fixed_stiffness = require_finite("scm: stiffness", stiffness, positive=True)
+
+    def control_range(self):
+        return (self.fixed_stiffness, self.fixed_stiffness)
+
+    def default_control(self):
+        return self.fixed_stiffness
+
+    def _out_of_range(self, value):
+        return (f"scm: the stiffness is fixed at k = {self.fixed_stiffness} N (config), got {value}; "
+                "use vscm to vary it per knot")
+
+
+class VariableSmoothContactModel(_ExponentialLaw):
+    name = "vscm"
+    description = "variable smooth contact model, stiffness per knot"
+    control_name = "stiffness k (N)"
+
+    def __init__(self, stiffness_max: float, stiffness_initial: float, curvature: float):
+        super().__init__(curvature)
+        self.stiffness_max = require_finite("vscm: stiffness_max", stiffness_max, positive=True)
+        self.stiffness_initial = require_finite("vscm: stiffness_initial", stiffness_initial, nonnegative=True)
+        if self.stiffness_initial > self.stiffness_max:
+            raise ValueError(f"vscm: stiffness_initial {self.stiffness_initial} exceeds stiffness_max {self.stiffness_max}")
+
+    def control_range(self):
+        return (0.0, self.stiffness_max)
+
+    def default_control(self):
+        return self.stiffness_initial
+
+
+class ComplementarityContactModel(ContactModel):
+    name = "cccm"
+    description = "relaxed complementarity constraints, force per knot"
+    control_name = "normal force gamma (N)"
+
+    def __init__(self, force_max: float):
+        self.force_max = require_finite("cccm: force_max", force_max, positive=True)
+
+    def control_range(self):
+        return (0.0, self.force_max)
+
+    def default_control(self):
+        return 0.0
+
+    def gamma(self, signed_distance_m, control):
+        return np.broadcast_to(np.asarray(control, dtype=float), np.shape(signed_distance_m)).copy()
+
+    def configure_actuator(self, spec, actuator):
+        # A plain MuJoCo force actuator: force = gain * ctrl with gain 1 (the default).
+        del spec, actuator
+
+
+CONTACT_MODELS: dict[str, type[ContactModel]] = {
+    cls.name: cls for cls in (ComplementarityContactModel, SmoothContactModel, VariableSmoothContactModel)
+}
+
+
+def contact_model(name: str, parameters: Mapping[str, Any] | None = None) -> ContactModel:
+    """The contact model `name` ('cccm', 'scm' or 'vscm') with its parameters from config."""
+    if not isinstance(name, str) or name.lower() not in CONTACT_MODELS:
+        raise ValueError(f"unknown contact model {name!r}; choose one of {sorted(CONTACT_MODELS)}")
+    name = name.lower()
+    parameters = load_parameters() if parameters is None else parameters
+    section = parameters.get("contact_models", {}).get(name)
+    if not isinstance(section, Mapping):
+        raise ValueError(f"config has no contact_models.{name} section")
+    try:
+        return CONTACT_MODELS[name](**section)
+    except TypeError as error:
+        raise ValueError(f"contact_models.{name}: {error}") from None

@@ -1,0 +1,199 @@
+"""Single-shooting rollouts of piecewise-constant joint torques at N control knots.
+
+ROS-free. A rollout starts from a full physics state (arm at rest at q0, object
+at its scene pose), holds each knot's controls for `steps_per_knot` simulation
+steps, and runs entirely inside MuJoCo (`mujoco.rollout`): the bias
+compensation and the virtual contact force are computed by the native engine
+plugins, so batched multi-threaded rollouts and `mjd_transitionFD` see exactly
+the same dynamics.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from mujoco import rollout as mj_rollout
+
+from cito_ros.config import require_finite
+from cito_ros.scene import ARM_JOINTS, Scene
+
+FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A simulated motion. Arrays over states have n_steps + 1 rows (t = 0 ... T);
+    arrays over steps have n_steps rows, row t being what acted during step t,
+    evaluated at state t."""
+
+    time_s: np.ndarray                 # (T+1,)
+    q: np.ndarray                      # (T+1, 7) joint positions (rad)
+    qdot: np.ndarray                   # (T+1, 7) joint velocities (rad/s)
+    object_position_m: np.ndarray      # (T+1, 3) world
+    object_quaternion: np.ndarray      # (T+1, 4) world, (w, x, y, z)
+    torque_Nm: np.ndarray              # (T, 7) applied tau = u + C^ - J_c^T lambda_c
+    control_torque_Nm: np.ndarray      # (T, 7) u
+    contact_control: np.ndarray        # (T,) contact actuator control (k or gamma, by model)
+    stiffness_N: np.ndarray | None     # (T,) k, None for a model without stiffness (CCCM)
+    gamma_N: np.ndarray                # (T,) virtual normal force
+    signed_distance_m: np.ndarray      # (T,) phi between the candidates
+    contact_force_N: np.ndarray        # (T, 3) actual robot-on-object contact force (MuJoCo), world
+    contact_count: np.ndarray          # (T,) number of robot-object contacts
+    ee_velocity_m_s: np.ndarray        # (T, 3) plate-centre velocity, world
+    warnings: dict[str, int] = field(default_factory=dict)  # MuJoCo warnings raised during the rollout
+
+    @property
+    def finite(self) -> bool:
+        arrays = [self.q, self.qdot, self.object_position_m, self.object_quaternion, self.torque_Nm,
+                  self.gamma_N, self.signed_distance_m, self.contact_force_N, self.ee_velocity_m_s]
+        return all(bool(np.all(np.isfinite(a))) for a in arrays)
+
+
+class Simulator:
+    """Rolls out knot controls in one scene (one contact model)."""
+
+    def __init__(self, scene: Scene, horizon_s: float = 1.0, control_period_s: float = 0.05, nthread: int = 2):
+        horizon_s = require_finite("horizon_s", horizon_s, positive=True)
+        control_period_s = require_finite("control_period_s", control_period_s, positive=True)
+        n_knots = horizon_s / control_period_s
+        if abs(n_knots - round(n_knots)) > 1e-9 or round(n_knots) < 1:
+            raise ValueError(f"horizon_s {horizon_s} must be a positive whole number of control periods {control_period_s}")
+        timestep = scene.model.opt.timestep
+        steps = control_period_s / timestep
+        if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+            raise ValueError(f"control_period_s {control_period_s} must be a whole number of timesteps {timestep}")
+        if not isinstance(nthread, int) or nthread < 1:
+            raise ValueError(f"nthread must be a positive integer, got {nthread!r}")
+        self.scene = scene
+        self.model = scene.model
+        self.horizon_s = horizon_s
+        self.control_period_s = control_period_s
+        self.n_knots = int(round(n_knots))
+        self.steps_per_knot = int(round(steps))
+        self.n_steps = self.n_knots * self.steps_per_knot
+        self.timestep_s = timestep
+        self.nthread = nthread
+        self.nstate = mujoco.mj_stateSize(self.model, FULL_PHYSICS)
+        self._qpos_offset = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_TIME)
+        self._qvel_offset = self._qpos_offset + self.model.nq
+        self._serial = mj_rollout.Rollout(nthread=0)
+        self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
+        self._data = [mujoco.MjData(self.model) for _ in range(nthread)]
+
+    # ------------------------------------------------------------------ inputs
+
+    def knot_controls(self, torques_Nm: np.ndarray, contact_control: np.ndarray | None = None) -> np.ndarray:
+        """Validated (n_knots, nu) controls: 7 torques u per knot, then the contact control."""
+        torques = np.asarray(torques_Nm, dtype=float)
+        if torques.shape != (self.n_knots, len(ARM_JOINTS)):
+            raise ValueError(f"torques must have shape ({self.n_knots}, 7) (knots x joints), got {torques.shape}")
+        if not np.all(np.isfinite(torques)):
+            raise ValueError("torques contain NaN or Inf")
+        limit = self.scene.torque_limit
+        over = np.abs(torques) > limit + 1e-12
+        if np.any(over):
+            knot, joint = np.argwhere(over)[0]
+            raise ValueError(f"torque {torques[knot, joint]} N m at knot {knot} exceeds the {ARM_JOINTS[joint]} "
+                             f"motor limit {limit[joint]} N m")
+        model = self.scene.contact_model
+        if contact_control is None:
+            contact = np.full(self.n_knots, model.default_control())
+        else:
+            contact = np.asarray(contact_control, dtype=float)
+            if contact.shape != (self.n_knots,):
+                raise ValueError(f"contact_control must have shape ({self.n_knots},) (one per knot), got {contact.shape}")
+            contact = model.validate_control(contact)
+        controls = np.zeros((self.n_knots, self.model.nu))
+        controls[:, self.scene.motor_ids] = torques
+        controls[:, self.scene.contact_actuator_id] = contact
+        return controls
+
+    def step_controls(self, knot_controls: np.ndarray) -> np.ndarray:
+        """(n_steps, nu) per-step controls: each knot held for steps_per_knot steps."""
+        return np.repeat(knot_controls, self.steps_per_knot, axis=0)
+
+    def validate_state(self, state: np.ndarray) -> np.ndarray:
+        state = np.asarray(state, dtype=float)
+        if state.shape != (self.nstate,):
+            raise ValueError(f"initial state must have shape ({self.nstate},) (mjSTATE_FULLPHYSICS), got {state.shape}")
+        if not np.all(np.isfinite(state)):
+            raise ValueError("initial state contains NaN or Inf")
+        return state
+
+    # ------------------------------------------------------------------ rollouts
+
+    def rollout(self, initial_state: np.ndarray, torques_Nm: np.ndarray,
+                contact_control: np.ndarray | None = None) -> Trajectory:
+        """Simulate the horizon from `initial_state` under the knot controls."""
+        initial_state = self.validate_state(initial_state)
+        controls = self.step_controls(self.knot_controls(torques_Nm, contact_control))
+        states, sensordata, warnings = self.rollout_batch(initial_state[None], controls[None])
+        return self.trajectory(initial_state, states[0], sensordata[0], controls, warnings)
+
+    def rollout_batch(self, initial_states: np.ndarray, step_controls: np.ndarray,
+                      nstep: int | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+        """Many rollouts on the thread pool, a single one on the calling thread
+        (inputs are trusted: no validation).
+
+        initial_states (B, nstate), step_controls (B, nstep, nu). Returns the states
+        (B, nstep, nstate), the sensordata (B, nstep, nsensordata) and the MuJoCo
+        warnings summed over the batch.
+        """
+        for data in self._data:
+            _clear_warnings(data)
+        batch = initial_states.shape[0]
+        # A fixed (zero) warmstart makes every rollout independent of what ran before on its
+        # thread's mjData: the same inputs give the same bits on any number of threads.
+        nstep = step_controls.shape[1] if nstep is None else nstep
+        runner, datas = (self._serial, self._data[:1]) if batch == 1 else (self._pool, self._data)
+        states = np.empty((batch, nstep, self.nstate))
+        sensordata = np.empty((batch, nstep, self.model.nsensordata))
+        runner.rollout([self.model] * batch, datas, np.ascontiguousarray(initial_states),
+                       np.ascontiguousarray(step_controls), skip_checks=True, nstep=nstep,
+                       initial_warmstart=np.zeros((batch, self.model.nv)), state=states, sensordata=sensordata)
+        return states, sensordata, _warnings(datas)
+
+    # ------------------------------------------------------------------ outputs
+
+    def trajectory(self, initial_state: np.ndarray, states: np.ndarray, sensordata: np.ndarray,
+                   controls: np.ndarray, warnings: dict[str, int]) -> Trajectory:
+        """Decode one rollout's states and sensor values into a Trajectory."""
+        scene, sensors = self.scene, self.scene.sensors
+        all_states = np.vstack([initial_state[None], states])
+        qpos = all_states[:, self._qpos_offset:self._qpos_offset + self.model.nq]
+        qvel = all_states[:, self._qvel_offset:self._qvel_offset + self.model.nv]
+        contact_control = controls[:, scene.contact_actuator_id].copy()
+        obj = scene.object_qpos_adr
+        return Trajectory(
+            time_s=all_states[:, 0].copy(),
+            q=qpos[:, scene.arm_qpos_adr].copy(),
+            qdot=qvel[:, scene.arm_dof_adr].copy(),
+            object_position_m=qpos[:, obj:obj + 3].copy(),
+            object_quaternion=qpos[:, obj + 3:obj + 7].copy(),
+            torque_Nm=sensordata[:, sensors.torque].copy(),
+            control_torque_Nm=controls[:, scene.motor_ids].copy(),
+            contact_control=contact_control,
+            stiffness_N=scene.contact_model.stiffness(contact_control),
+            gamma_N=sensordata[:, sensors.gamma][:, 0].copy(),
+            signed_distance_m=scene.signed_distance_from_local(sensordata[:, sensors.robot_candidate_in_object]),
+            contact_force_N=sensordata[:, sensors.contact_force].copy(),
+            contact_count=sensordata[:, sensors.contact_found][:, 0].copy(),
+            ee_velocity_m_s=sensordata[:, sensors.ee_velocity].copy(),
+            warnings=warnings,
+        )
+
+
+def _clear_warnings(data: mujoco.MjData) -> None:
+    for warning in data.warning:
+        warning.number = 0
+
+
+def _warnings(datas: list[mujoco.MjData]) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for data in datas:
+        for index, warning in enumerate(data.warning):
+            if warning.number:
+                name = mujoco.mjtWarning(index).name
+                counts[name] = counts.get(name, 0) + int(warning.number)
+    return counts

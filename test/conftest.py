@@ -1,0 +1,43 @@
+"""Shared fixtures: real MuJoCo scenes, compiled once per test session."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cito_ros.config import load_parameters
+from cito_ros.contact_models import contact_model
+from cito_ros.scene import Scene, start_configuration
+from cito_ros.simulator import Simulator
+
+
+@pytest.fixture(scope="session")
+def parameters():
+    return load_parameters()
+
+
+@pytest.fixture(scope="session")
+def scenes(parameters):
+    """Native scene per contact model name."""
+    return {name: Scene(contact_model(name, parameters)) for name in ("cccm", "scm", "vscm")}
+
+
+@pytest.fixture(scope="session")
+def oracle_scenes(parameters):
+    return {name: Scene(contact_model(name, parameters), native=False) for name in ("cccm", "scm", "vscm")}
+
+
+@pytest.fixture(scope="session")
+def simulators(scenes):
+    return {name: Simulator(scene) for name, scene in scenes.items()}
+
+
+@pytest.fixture(scope="session")
+def start_states(scenes):
+    """Initial full-physics state per beta (identical for every contact model)."""
+    return {beta: scenes["vscm"].initial_state(start_configuration(beta)) for beta in (5, 6, 7)}
+
+
+def approach_torques(simulator: Simulator, seed: int = 1, scale: float = 0.15) -> np.ndarray:
+    """A fixed torque sequence that moves the whole arm."""
+    rng = np.random.default_rng(seed)
+    return scale * rng.uniform(-1, 1, (simulator.n_knots, 7)) * simulator.scene.torque_limit

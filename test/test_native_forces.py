@@ -1,0 +1,82 @@
+"""The native engine plugins against the pure-Python oracle (cito_ros.oracle)."""
+import mujoco
+import numpy as np
+import pytest
+
+from cito_ros import oracle
+
+from conftest import approach_torques
+
+
+def random_states(scene, count, seed=0):
+    """Forward-computed mjData at random arm configurations and velocities near the cube."""
+    rng = np.random.default_rng(seed)
+    datas = []
+    for beta in np.linspace(5, 7, count):
+        data = mujoco.MjData(scene.model)
+        q0 = np.array([-np.pi / 12, -np.pi / beta, 0, 3 * np.pi / beta, -np.pi / 6, -2 * np.pi / beta, 0])
+        data.qpos[scene.arm_qpos_adr] = q0 + rng.normal(0, 0.05, 7)
+        data.qvel[scene.arm_dof_adr] = rng.normal(0, 0.5, 7)
+        data.qvel[scene.object_dof_adr:scene.object_dof_adr + 6] = rng.normal(0, 0.1, 6)
+        data.ctrl[scene.motor_ids] = rng.uniform(-1, 1, 7) * scene.torque_limit * 0.5
+        datas.append(data)
+    return datas
+
+
+@pytest.mark.parametrize("name, control", [("vscm", 100.0), ("vscm", 7.5), ("scm", 100.0), ("cccm", 2.5)])
+def test_native_forces_equal_the_oracle(scenes, name, control):
+    scene = scenes[name]
+    for data in random_states(scene, 8):
+        data.ctrl[scene.contact_actuator_id] = control
+        mujoco.mj_forward(scene.model, data)
+        expected = oracle.forces(scene, data, control)
+        assert data.actuator_force[scene.contact_actuator_id] == pytest.approx(expected.gamma_N, rel=1e-9, abs=0)
+        np.testing.assert_allclose(data.actuator_force[scene.motor_ids],
+                                   data.ctrl[scene.motor_ids] + expected.bias_Nm, rtol=1e-9)
+        # generalized forces of all actuators: motors (u + C^) plus the virtual contact force
+        total = expected.generalized_force.copy()
+        total[scene.arm_dof_adr] += data.ctrl[scene.motor_ids] + expected.bias_Nm
+        np.testing.assert_allclose(data.qfrc_actuator, total, rtol=1e-9, atol=1e-9 * np.abs(total).max())
+        assert expected.gamma_N > 0
+
+
+def test_virtual_forces_are_equal_and_opposite(scenes):
+    scene = scenes["vscm"]
+    model = scene.model
+    for data in random_states(scene, 6, seed=4):
+        data.ctrl[scene.motor_ids] = 0
+        data.ctrl[scene.contact_actuator_id] = 100.0
+        mujoco.mj_forward(model, data)
+        gamma = data.actuator_force[scene.contact_actuator_id]
+        # on the object: the free joint's translational dofs carry the world-frame force
+        dofs = scene.object_dof_adr
+        object_force = data.qfrc_actuator[dofs:dofs + 3]
+        np.testing.assert_allclose(object_force, gamma * scene.inward_normal(data), rtol=1e-12)
+        # on the robot: recover the Cartesian force at its candidate from the joint torques
+        robot_torques = data.qfrc_actuator[scene.arm_dof_adr] - data.actuator_force[scene.motor_ids]
+        jacobian = np.zeros((3, model.nv))
+        mujoco.mj_jacSite(model, data, jacobian, None, scene.robot_site_id)
+        robot_force, *_ = np.linalg.lstsq(jacobian[:, scene.arm_dof_adr].T, robot_torques, rcond=None)
+        np.testing.assert_allclose(robot_force, -object_force, rtol=1e-9, atol=1e-12)
+        # the force acts through the object candidate: no torque about it
+        torque_dofs = data.qfrc_actuator[dofs + 3:dofs + 6]
+        lever = data.site_xpos[scene.object_site_id] - data.xpos[scene.object_body_id]
+        expected_torque = data.xmat[scene.object_body_id].reshape(3, 3).T @ np.cross(lever, object_force)
+        np.testing.assert_allclose(torque_dofs, expected_torque, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
+def test_native_rollout_equals_the_oracle_rollout(simulators, oracle_scenes, start_states, name):
+    simulator = simulators[name]
+    torques = approach_torques(simulator, seed=2)
+    control = np.linspace(0, 3, 20) if name == "cccm" else None
+    native = simulator.rollout(start_states[7], torques, control)
+    python = oracle.rollout(simulator, oracle_scenes[name], start_states[7], torques, control)
+    for field in ("q", "qdot", "object_position_m", "torque_Nm", "gamma_N", "signed_distance_m"):
+        a, b = getattr(native, field), getattr(python, field)
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()), err_msg=field)
+
+
+def test_oracle_rollout_needs_the_oracle_scene(simulators, scenes, start_states):
+    with pytest.raises(ValueError, match="needs the oracle scene"):
+        oracle.rollout(simulators["vscm"], scenes["vscm"], start_states[5], np.zeros((20, 7)))

@@ -1,0 +1,78 @@
+"""The push scene: start poses, initial distances, model contents, config errors."""
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from cito_ros.config import SceneConfig
+from cito_ros.contact_models import contact_model
+from cito_ros.scene import Scene, start_configuration
+
+PAPER_DISTANCES = {5: 0.30, 6: 0.17, 7: 0.11}
+
+
+@pytest.mark.parametrize("beta", [5, 6, 7])
+def test_initial_distance_matches_paper(scenes, beta):
+    distance = scenes["vscm"].initial_distance(beta)
+    assert abs(distance - PAPER_DISTANCES[beta]) < 0.015, distance
+
+
+def test_start_configuration_formula():
+    q0 = start_configuration(6)
+    np.testing.assert_allclose(q0, [-math.pi / 12, -math.pi / 6, 0, math.pi / 2, -math.pi / 6, -math.pi / 3, 0])
+
+
+@pytest.mark.parametrize("beta", [0, -3, float("nan"), float("inf")])
+def test_bad_beta_is_rejected(beta):
+    with pytest.raises(ValueError, match="beta"):
+        start_configuration(beta)
+
+
+def test_start_pose_outside_joint_limits_is_rejected(scenes):
+    with pytest.raises(ValueError, match="j3 .* outside its range"):
+        scenes["vscm"].data_at(start_configuration(1.0))
+
+
+def test_only_pushing_pairs_collide(scenes):
+    model = scenes["vscm"].model
+    # no geom takes part in broad-phase collision; only the listed pairs are tested
+    assert not np.any(model.geom_contype) and not np.any(model.geom_conaffinity)
+    pairs = {frozenset((model.geom(int(a)).name, model.geom(int(b)).name))
+             for a, b in zip(model.pair_geom1, model.pair_geom2)}
+    assert {"object_geom", "table"} in pairs and {"plate", "object_geom"} in pairs
+    # every pair is arm-object, object-table or arm-table(top)
+    assert all("object_geom" in pair or "table_top" in pair for pair in pairs)
+    assert len(pairs) == model.npair == 11
+
+
+def test_simulator_settings_live_in_the_model(scenes):
+    opt = scenes["vscm"].model.opt
+    assert opt.timestep == 0.005 and opt.tolerance == 1e-12
+    assert opt.solver == mujoco.mjtSolver.mjSOL_NEWTON and opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+
+
+def test_scene_config_is_applied(tmp_path):
+    path = tmp_path / "heavy.yaml"
+    path.write_text("object: {half_size_m: 0.05, mass_kg: 2.0, position_m: [1.0, 0.1], friction: 1.2}\n")
+    scene = Scene(contact_model("vscm"), SceneConfig.load(path))
+    data = scene.data_at(start_configuration(5))
+    position, _ = scene.object_pose(data)
+    np.testing.assert_allclose(position, [1.0, 0.1, 0.075])
+    assert scene.model.body_mass[scene.object_body_id] == pytest.approx(2.0)
+    np.testing.assert_allclose(data.site_xpos[scene.object_site_id], [0.95, 0.1, 0.075])
+    object_pairs = [p for p in range(scene.model.npair) if scene.object_geom_id in
+                    (scene.model.pair_geom1[p], scene.model.pair_geom2[p])]
+    assert all(scene.model.pair_friction[p][0] == 1.2 for p in object_pairs)
+
+
+def test_unknown_scene_is_rejected():
+    with pytest.raises(ValueError, match="unknown scene 'nope'"):
+        SceneConfig.load("nope")
+
+
+def test_bad_scene_values_are_rejected():
+    with pytest.raises(ValueError, match="mass_kg must be positive"):
+        SceneConfig.from_mapping("x", {"object": {"mass_kg": -1}})
+    with pytest.raises(ValueError, match="position_m must be"):
+        SceneConfig.from_mapping("x", {"object": {"position_m": [1, 2, 3]}})
