@@ -10,8 +10,7 @@ setup:
 	@./scripts/setup.sh
 
 run: setup
-	@$(VENV)/bin/cito-scene info
-	@$(VENV)/bin/cito-bench rollout
+	@$(VENV)/bin/cito-plan
 
 test: setup
 	@$(PY) -m pytest -q test

@@ -22,12 +22,13 @@ def mujoco_extension() -> Extension:
         raise RuntimeError(f"libmujoco.so not found next to {mujoco.__file__}")
     return Extension(
         f"{PACKAGE}._native",
-        sources=["cito_ros/native/cito_plugins.c"],
+        sources=sorted(glob.glob("cito_ros/native/*.c")),
+        depends=sorted(glob.glob("cito_ros/native/*.h")),
         include_dirs=[os.path.join(mujoco_dir, "include")],
         extra_compile_args=["-O2", "-std=c11", "-Wall", "-Wextra", "-Werror"],
         # Link the wheel's libmujoco by path; the rpaths find it for an installed
         # package ($ORIGIN/../mujoco) and for an in-place (editable) build.
-        extra_link_args=[libraries[0], f"-Wl,-rpath,$ORIGIN/../mujoco,-rpath,{mujoco_dir}"],
+        extra_link_args=[libraries[0], "-lpthread", f"-Wl,-rpath,$ORIGIN/../mujoco,-rpath,{mujoco_dir}"],
     )
 
 
@@ -56,6 +57,7 @@ setup(
         "console_scripts": [
             "cito-scene = cito_ros.cli.scene:main",
             "cito-bench = cito_ros.cli.bench:main",
+            "cito-plan = cito_ros.cli.plan:main",
         ],
     },
 )

@@ -4,9 +4,11 @@ Each function returns a JSON-serialisable dict; `cito-bench` prints it.
 """
 from __future__ import annotations
 
+import csv
 import os
 import statistics
 import time
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -14,6 +16,8 @@ import numpy as np
 from cito_ros import oracle
 from cito_ros.config import load_parameters
 from cito_ros.contact_models import contact_model
+from cito_ros.planner import plan_push
+from cito_ros.problem import ProblemSettings, PushProblem, PushTask
 from cito_ros.scene import Scene, start_configuration
 from cito_ros.simulator import Simulator
 
@@ -68,3 +72,120 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
         "step_us": 1e3 * native_ms / simulator.n_steps,
         "cpu_count": os.cpu_count(),
     }
+
+
+def gradient_benchmark(repeats: int = 20, contact_model_name: str = "vscm") -> dict:
+    """Time of the full gradient (cost over every decision variable; linearization, adjoint
+    pass and terminal derivatives) against one bare native rollout of the same controls, at the
+    optimizer's start (zero torques) perturbed a little per repeat (no cache hits)."""
+    parameters = load_parameters()
+    model = contact_model(contact_model_name, parameters)
+    scene = Scene(model, parameters["scene"])
+    settings = ProblemSettings.from_parameters(parameters, model.name)
+    simulator = Simulator(scene, parameters["horizon_s"], parameters["control_period_s"], nthread=settings.threads)
+    state = scene.initial_state(start_configuration(parameters["beta"]))
+    start = state[1 + scene.object_qpos_adr:1 + scene.object_qpos_adr + 3]
+    problem = PushProblem(simulator, state, PushTask(start + np.array([0.25, 0.0, 0.0])), settings)
+    rng = np.random.default_rng(0)
+    points = [np.clip(problem.initial_guess + 0.01 * rng.uniform(-1, 1, problem.size) * problem.scale,
+                      problem.lower, problem.upper) for _ in range(repeats + 3)]
+    gradient_samples, linearize_samples = [], []
+    for i, z in enumerate(points):
+        evaluation = problem.evaluate(z)
+        start_time = time.perf_counter()
+        problem._linearize(evaluation)
+        linearize_s = time.perf_counter() - start_time
+        evaluation.gradient = None
+        start_time = time.perf_counter()
+        problem.derivatives(z)
+        gradient_s = time.perf_counter() - start_time
+        if i >= 3:  # warm-up
+            gradient_samples.append(gradient_s)
+            linearize_samples.append(linearize_s)
+    controls = simulator.step_controls(problem.knot_controls(points[0]))[None]
+    rollout_ms = median_ms(lambda: simulator.rollout_batch(state[None], controls), 10 * repeats, warmup=10)
+    gradient_ms = 1e3 * statistics.median(gradient_samples)
+    return {
+        "contact_model": model.name,
+        "decision_variables": problem.size,
+        "steps": simulator.n_steps,
+        "threads": settings.threads,
+        "gradient_ms": gradient_ms,
+        "linearization_ms": 1e3 * statistics.median(linearize_samples),
+        "rollout_ms": rollout_ms,
+        "ratio": gradient_ms / rollout_ms,
+        "repeats": repeats,
+    }
+
+
+# The paper's Tables I-IV, by initial distance (beta 7, 6, 5) and contact model.
+PAPER = {
+    "physical_inaccuracy_Ns": {7: (0.1121, 2.0400, 1.2137), 6: (0.0238, 1.4914, 1.2676), 5: (0.0373, 0.0381, 0.0001)},
+    "position_error_m": {7: (0.1052, 0.0285, 0.0185), 6: (0.1979, 0.0318, 0.0291), 5: (0.1924, 0.1908, 0.0836)},
+    "orientation_error_rad": {7: (0.7067, 0.0238, 0.0533), 6: (0.4022, 0.0586, 0.0654), 5: (0.3475, 0.4547, 0.0415)},
+    "solve_time_s": {7: (43.09, 41.07, 111.22), 6: (44.52, 27.87, 16.28), 5: (112.77, 23.98, 60.49)},
+}
+PAPER_MODELS = ("cccm", "scm", "vscm")
+PAPER_DISTANCE = {7: 0.11, 6: 0.17, 5: 0.30}
+TABLES = (
+    ("I", "Physical inaccuracy", "physical_inaccuracy_Ns", "N s", 4),
+    ("II", "Final position error", "position_error_m", "m", 4),
+    ("III", "Final orientation error", "orientation_error_rad", "rad", 4),
+    ("IV", "Computation time", "solve_time_s", "s", 2),
+    ("V", "Replay position error (virtual force off; not in the paper)", "replay_position_error_m", "m", 4),
+)
+
+
+def paper_benchmark(progress: Callable[[int, str], None] | None = None) -> list[dict]:
+    """Solve the paper's nine cases (3 contact models x beta 5, 6, 7)."""
+    results = []
+    cases = [(model, beta) for model in PAPER_MODELS for beta in (5, 6, 7)]
+    for index, (model, beta) in enumerate(cases):
+        if progress:
+            progress(index, f"{model} beta={beta}")
+        results.append(plan_push(model, beta).summary())
+    if progress:
+        progress(len(cases), "done")
+    return results
+
+
+def paper_tables(results: list[dict]) -> str:
+    """Markdown: Tables I-IV of the paper side by side with ours, plus the replay error."""
+    by_case = {(r["contact_model"], int(r["beta"])): r for r in results}
+    lines = []
+    for number, title, key, unit, digits in TABLES:
+        lines += [f"### Table {number}: {title} [{unit}]", "",
+                  "| phi0 (m) | beta | " + " | ".join(f"{m.upper()} ours | {m.upper()} paper" for m in PAPER_MODELS) + " |",
+                  "|---|---|" + "---|---|" * len(PAPER_MODELS)]
+        for beta in (7, 6, 5):
+            cells = []
+            for i, model in enumerate(PAPER_MODELS):
+                ours = by_case.get((model, beta), {}).get(key)
+                paper = PAPER.get(key, {}).get(beta, (None,) * 3)[i]
+                cells += [f"{ours:.{digits}f}" if ours is not None else "-",
+                          f"{paper:.{digits}f}" if paper is not None else "-"]
+            lines.append(f"| {PAPER_DISTANCE[beta]:.2f} | {beta} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += ["Task success (position error < 0.1 m): " + ", ".join(
+        f"{r['contact_model']} beta={int(r['beta'])}: {'yes' if r['success'] else 'no'} ({r['status']})" for r in results),
+        "", f"Median solve time over the {len(results)} cases: {statistics.median(r['solve_time_s'] for r in results):.2f} s", ""]
+    return "\n".join(lines)
+
+
+def write_paper_outputs(results: list[dict], out_dir: Path) -> list[Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    markdown = out_dir / "paper_tables.md"
+    markdown.write_text(paper_tables(results))
+    table = out_dir / "paper_tables.csv"
+    with open(table, "w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(["contact_model", "beta", "initial_distance_m", "status", "success", "iterations"]
+                        + [f"{key}{suffix}" for _, _, key, _, _ in TABLES for suffix in ("", "_paper")])
+        for r in results:
+            beta = int(r["beta"])
+            row = [r["contact_model"], beta, r["initial_distance_m"], r["status"], r["success"], r["iterations"]]
+            for _, _, key, _, _ in TABLES:
+                paper = PAPER.get(key, {}).get(beta)
+                row += [r[key], "" if paper is None else paper[PAPER_MODELS.index(r["contact_model"])]]
+            writer.writerow(row)
+    return [markdown, table]

@@ -17,6 +17,7 @@ literal default.
 from __future__ import annotations
 
 import abc
+from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
 import mujoco
@@ -25,6 +26,33 @@ import numpy as np
 from cito_ros.config import load_parameters, require_finite
 
 CONTACT_PLUGIN = "cito.virtual_contact"
+
+
+@dataclass(frozen=True)
+class KnotVariable:
+    """A decision variable a contact model adds at every knot (besides the 7 torques)."""
+
+    name: str
+    lower: float
+    upper: float
+    initial: float
+    scale: float  # typical magnitude, for the optimizer's variable scaling
+
+
+@dataclass(frozen=True)
+class KnotConstraints:
+    """Constraints g(phi_l, v_l) at each knot l, with lower <= g <= upper.
+
+    phi_l is the knot's mean signed distance (a function of all earlier decisions
+    through the dynamics), v_l the model's knot variables.
+    """
+
+    values: np.ndarray        # (N, m)
+    d_phi: np.ndarray         # (N, m)       dg/dphi_l
+    d_variables: np.ndarray   # (N, m, n_var) dg/dv_l
+    lower: np.ndarray         # (m,)
+    upper: np.ndarray         # (m,)
+    names: tuple[str, ...]    # (m,)
 
 
 class ContactModel(abc.ABC):
@@ -54,6 +82,29 @@ class ContactModel(abc.ABC):
     def stiffness(self, control: np.ndarray) -> np.ndarray | None:
         """Stiffness k (N) per entry of `control`, or None for a model without one."""
         return None
+
+    # ---------------------------------------------------------------- optimization
+
+    #: Decision variables this model adds at every knot.
+    knot_variables: ClassVar[tuple[KnotVariable, ...]] = ()
+    #: Index in knot_variables of the variable that is the contact control, or None (fixed control).
+    control_variable: ClassVar[int | None] = None
+
+    def contact_control(self, variables: np.ndarray) -> np.ndarray:
+        """Contact control per knot from the (N, n_var) knot variables."""
+        if self.control_variable is None:
+            return np.full(variables.shape[0], self.default_control())
+        return variables[:, self.control_variable]
+
+    def variable_cost(self, variables: np.ndarray, weights: Mapping[str, float]) -> tuple[float, np.ndarray]:
+        """Cost terms on the knot variables alone, and their gradient (N, n_var)."""
+        return 0.0, np.zeros_like(variables)
+
+    def knot_constraints(self, mean_signed_distance_m: np.ndarray, variables: np.ndarray) -> KnotConstraints:
+        """Constraints per knot (none by default)."""
+        n = variables.shape[0]
+        return KnotConstraints(np.zeros((n, 0)), np.zeros((n, 0)), np.zeros((n, 0, variables.shape[1])),
+                               np.zeros(0), np.zeros(0), ())
 
     def validate_control(self, control: np.ndarray) -> np.ndarray:
         """`control` as a float array, or a ValueError saying what is wrong with it."""
@@ -123,6 +174,7 @@ class VariableSmoothContactModel(_ExponentialLaw):
     name = "vscm"
     description = "variable smooth contact model, stiffness per knot"
     control_name = "stiffness k (N)"
+    control_variable = 0
 
     def __init__(self, stiffness_max: float, stiffness_initial: float, curvature: float):
         super().__init__(curvature)
@@ -130,6 +182,8 @@ class VariableSmoothContactModel(_ExponentialLaw):
         self.stiffness_initial = require_finite("vscm: stiffness_initial", stiffness_initial, nonnegative=True)
         if self.stiffness_initial > self.stiffness_max:
             raise ValueError(f"vscm: stiffness_initial {self.stiffness_initial} exceeds stiffness_max {self.stiffness_max}")
+        self.knot_variables = (KnotVariable("stiffness_N", 0.0, self.stiffness_max, self.stiffness_initial,
+                                            self.stiffness_max),)
 
     def control_range(self):
         return (0.0, self.stiffness_max)
@@ -139,12 +193,19 @@ class VariableSmoothContactModel(_ExponentialLaw):
 
 
 class ComplementarityContactModel(ContactModel):
+    """gamma_l and a slack s_l per knot; constraints (11)-(12) of the paper:
+    phi_l >= 0, gamma_l >= 0, s_l >= 0, phi_l gamma_l <= s_l; cost w5 sum s_l^2."""
+
     name = "cccm"
     description = "relaxed complementarity constraints, force per knot"
     control_name = "normal force gamma (N)"
+    control_variable = 0
 
-    def __init__(self, force_max: float):
+    def __init__(self, force_max: float, slack_max: float):
         self.force_max = require_finite("cccm: force_max", force_max, positive=True)
+        self.slack_max = require_finite("cccm: slack_max", slack_max, positive=True)
+        self.knot_variables = (KnotVariable("gamma_N", 0.0, self.force_max, 0.0, self.force_max),
+                               KnotVariable("slack_Nm", 0.0, self.slack_max, 0.0, self.slack_max))
 
     def control_range(self):
         return (0.0, self.force_max)
@@ -158,6 +219,27 @@ class ComplementarityContactModel(ContactModel):
     def configure_actuator(self, spec, actuator):
         # A plain MuJoCo force actuator: force = gain * ctrl with gain 1 (the default).
         del spec, actuator
+
+    def variable_cost(self, variables, weights):
+        slack = variables[:, 1]
+        gradient = np.zeros_like(variables)
+        gradient[:, 1] = 2 * weights["w5"] * slack
+        return float(weights["w5"] * np.sum(slack ** 2)), gradient
+
+    def knot_constraints(self, mean_signed_distance_m, variables):
+        phi, gamma, slack = mean_signed_distance_m, variables[:, 0], variables[:, 1]
+        n = len(phi)
+        d_variables = np.zeros((n, 2, 2))
+        d_variables[:, 1, 0] = phi      # d(phi gamma - s)/d gamma
+        d_variables[:, 1, 1] = -1.0     # d(phi gamma - s)/d s
+        return KnotConstraints(
+            values=np.stack([phi, phi * gamma - slack], axis=1),
+            d_phi=np.stack([np.ones(n), gamma], axis=1),
+            d_variables=d_variables,
+            lower=np.array([0.0, -np.inf]),
+            upper=np.array([np.inf, 0.0]),
+            names=("signed_distance", "complementarity"),
+        )
 
 
 CONTACT_MODELS: dict[str, type[ContactModel]] = {

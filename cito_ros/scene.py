@@ -29,6 +29,7 @@ OBJECT_BODY = "object"
 OBJECT_GEOM = "object_geom"
 OBJECT_JOINT = "object_joint"
 TABLE_TOP_Z_M = 0.025
+SETTLE_TIME_S = 0.3  # time for the object to settle into its table contact (several contact time constants)
 
 
 def start_configuration(beta: float) -> np.ndarray:
@@ -180,10 +181,23 @@ class Scene:
         return data
 
     def initial_state(self, q: np.ndarray) -> np.ndarray:
-        """mjSTATE_FULLPHYSICS state with the arm at q, at rest, and the object at its scene pose."""
-        data = self.data_at(q)
-        state = np.empty(mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
-        mujoco.mj_getState(self.model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        """mjSTATE_FULLPHYSICS state with the arm at rest at q and the object resting on the table.
+
+        The object is placed touching the table and left to settle into its soft contact (the
+        arm held at q) for SETTLE_TIME_S, then zeroed in velocity and time: a start exactly at
+        zero penetration would sit on a contact switch, where linearizations are unreliable.
+        """
+        q = self.validate_arm_configuration(q)
+        model, data = self.model, self.data_at(q)
+        for _ in range(int(round(SETTLE_TIME_S / model.opt.timestep))):
+            mujoco.mj_step(model, data)
+            data.qpos[self.arm_qpos_adr] = q
+            data.qvel[self.arm_dof_adr] = 0
+        data.qvel[:] = 0
+        data.time = 0
+        mujoco.mj_forward(model, data)
+        state = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        mujoco.mj_getState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         return state
 
     # ------------------------------------------------------------------ geometry

@@ -124,10 +124,17 @@ class Simulator:
     # ------------------------------------------------------------------ rollouts
 
     def rollout(self, initial_state: np.ndarray, torques_Nm: np.ndarray,
-                contact_control: np.ndarray | None = None) -> Trajectory:
-        """Simulate the horizon from `initial_state` under the knot controls."""
+                contact_control: np.ndarray | None = None, *, virtual_force: bool = True) -> Trajectory:
+        """Simulate the horizon from `initial_state` under the knot controls.
+
+        With virtual_force=False the contact actuator's control is zeroed (gamma = 0 for
+        every contact model): the torques and the bias compensation act alone.
+        """
         initial_state = self.validate_state(initial_state)
-        controls = self.step_controls(self.knot_controls(torques_Nm, contact_control))
+        knot_controls = self.knot_controls(torques_Nm, contact_control)
+        if not virtual_force:
+            knot_controls[:, self.scene.contact_actuator_id] = 0.0
+        controls = self.step_controls(knot_controls)
         states, sensordata, warnings = self.rollout_batch(initial_state[None], controls[None])
         return self.trajectory(initial_state, states[0], sensordata[0], controls, warnings)
 

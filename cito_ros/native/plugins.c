@@ -17,11 +17,7 @@
 //                           the robot candidate, i.e. the object is pushed along the inward normal
 //                           and the robot feels the reaction.
 //
-// This file is also the CPython extension module cito_ros._native: importing it registers the
-// plugins (once per process), and it exposes nothing else.
-
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "cito_native.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -150,45 +146,24 @@ static void contact_compute(const mjModel* m, mjData* d, int instance, int capab
 
 //---------------------------------- registration ------------------------------------------------
 
-static void register_plugins(void) {
-  static const char* contact_attributes[] = {"curvature"};
-
-  mjpPlugin motor;
-  mjp_defaultPlugin(&motor);
-  motor.name = "cito.compensated_motor";
-  motor.capabilityflags = mjPLUGIN_ACTUATOR;
-  motor.nattribute = 0;
-  motor.attributes = NULL;
-  motor.nstate = nop_nstate;
-  motor.init = motor_init;
-  motor.reset = nop_reset;
-  motor.compute = motor_compute;
-  mjp_registerPlugin(&motor);
-
-  mjpPlugin contact;
-  mjp_defaultPlugin(&contact);
-  contact.name = "cito.virtual_contact";
-  contact.capabilityflags = mjPLUGIN_ACTUATOR;
-  contact.nattribute = 1;
-  contact.attributes = contact_attributes;
-  contact.nstate = nop_nstate;
-  contact.init = contact_init;
-  contact.reset = nop_reset;
-  contact.compute = contact_compute;
-  mjp_registerPlugin(&contact);
+static void register_actuator_plugin(const char* name, int nattribute, const char** attributes,
+                                    int (*init)(const mjModel*, mjData*, int),
+                                    void (*compute)(const mjModel*, mjData*, int, int)) {
+  mjpPlugin plugin;
+  mjp_defaultPlugin(&plugin);
+  plugin.name = name;
+  plugin.capabilityflags = mjPLUGIN_ACTUATOR;
+  plugin.nattribute = nattribute;
+  plugin.attributes = attributes;
+  plugin.nstate = nop_nstate;
+  plugin.init = init;
+  plugin.reset = nop_reset;
+  plugin.compute = compute;
+  mjp_registerPlugin(&plugin);
 }
 
-//---------------------------------- Python module -----------------------------------------------
-
-static struct PyModuleDef native_module = {
-  PyModuleDef_HEAD_INIT, "_native",
-  "MuJoCo engine plugins cito.compensated_motor and cito.virtual_contact "
-  "(registered on import).",
-  -1, NULL, NULL, NULL, NULL, NULL,
-};
-
-PyMODINIT_FUNC PyInit__native(void) {
-  // Python imports a module once per process; re-registering would fail.
-  register_plugins();
-  return PyModule_Create(&native_module);
+void cito_register_plugins(void) {
+  static const char* contact_attributes[] = {"curvature"};
+  register_actuator_plugin("cito.compensated_motor", 0, NULL, motor_init, motor_compute);
+  register_actuator_plugin("cito.virtual_contact", 1, contact_attributes, contact_init, contact_compute);
 }

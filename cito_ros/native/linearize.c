@@ -1,0 +1,273 @@
+// Finite-difference linearization of simulation steps (see cito_native.h).
+#include "cito_native.h"
+
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct {
+  const mjModel* m;
+  mjData* d;
+  int T;
+  const mjtNum* states;
+  const mjtNum* controls;
+  mjtNum eps;
+  int nthread;
+  int tid;
+  mjtNum *A, *B, *C, *D;
+  int* flags;
+  int failed;
+} Job;
+
+// Scratch of one thread: the nominal inputs and outputs of the step being linearized.
+typedef struct {
+  mjtNum *qpos, *qvel, *ctrl, time;               // nominal inputs
+  mjtNum *next_qpos, *next_qvel, *sensor;         // nominal outputs
+  mjtNum *plus_qpos, *plus_qvel, *plus_sensor;    // a perturbed evaluation
+  mjtNum *ahead_qpos, *ahead_qvel, *ahead_sensor; // the forward one, when retrying backward
+  mjtNum *dq, *column;
+  int ncon, *pairs, pairs_capacity;               // nominal contact set
+  int failed;
+} Scratch;
+
+static void restore(const mjModel* m, mjData* d, const Scratch* s) {
+  mju_copy(d->qpos, s->qpos, m->nq);
+  mju_copy(d->qvel, s->qvel, m->nv);
+  mju_copy(d->ctrl, s->ctrl, m->nu);
+  d->time = s->time;
+  mju_zero(d->qacc_warmstart, m->nv);
+}
+
+static void integrate(const mjModel* m, mjData* d) {
+  if (m->opt.integrator == mjINT_EULER) {
+    mj_Euler(m, d);
+  } else {
+    mj_implicit(m, d);
+  }
+}
+
+static int same_contacts(const mjData* d, const Scratch* s) {
+  if (d->ncon != s->ncon) return 0;
+  for (int i = 0; i < d->ncon; i++) {
+    if (d->contact[i].geom[0] != s->pairs[2 * i] || d->contact[i].geom[1] != s->pairs[2 * i + 1]) return 0;
+  }
+  return 1;
+}
+
+// Evaluate the step from the current (perturbed) inputs, skipping stages below skipstage;
+// store next state and sensors in the plus_* buffers. Returns whether the contact set is nominal.
+static int evaluate(const mjModel* m, mjData* d, Scratch* s, int skipstage) {
+  mj_forwardSkip(m, d, skipstage, 0);
+  int same = same_contacts(d, s);
+  mju_copy(s->plus_sensor, d->sensordata, m->nsensordata);
+  integrate(m, d);
+  mju_copy(s->plus_qpos, d->qpos, m->nq);
+  mju_copy(s->plus_qvel, d->qvel, m->nv);
+  return same;
+}
+
+// column (nx + ns) = (after - before) / h for next state (tangent space) and sensors.
+static void difference(const mjModel* m, const mjtNum* qpos_before, const mjtNum* qvel_before,
+                       const mjtNum* sensor_before, const mjtNum* qpos_after, const mjtNum* qvel_after,
+                       const mjtNum* sensor_after, mjtNum h, mjtNum* column) {
+  int nv = m->nv;
+  mj_differentiatePos(m, column, h, qpos_before, qpos_after);
+  for (int i = 0; i < nv; i++) column[nv + i] = (qvel_after[i] - qvel_before[i]) / h;
+  for (int i = 0; i < m->nsensordata; i++) column[2 * nv + i] = (sensor_after[i] - sensor_before[i]) / h;
+}
+
+// Scatter column j of the stacked [x_next; s] derivative into (A or B) and (C or D).
+static void scatter(const mjModel* m, const mjtNum* column, int j, int ncol, mjtNum* state_block,
+                    mjtNum* sensor_block) {
+  int nx = 2 * m->nv;
+  for (int r = 0; r < nx; r++) state_block[r * ncol + j] = column[r];
+  for (int r = 0; r < m->nsensordata; r++) sensor_block[r * ncol + j] = column[nx + r];
+}
+
+static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum* state,
+                           const mjtNum* control, mjtNum eps, mjtNum* A, mjtNum* B, mjtNum* C,
+                           mjtNum* D, int* flags) {
+  int nv = m->nv, nu = m->nu, nx = 2 * nv;
+  for (int i = 0; i < mjNWARNING; i++) d->warning[i].number = 0;
+
+  // nominal evaluation: keeps the position- and velocity-stage results for the skips below
+  mj_setState(m, d, state, mjSTATE_FULLPHYSICS);
+  mju_copy(d->ctrl, control, nu);
+  mju_zero(d->qacc_warmstart, nv);
+  mju_copy(s->qpos, d->qpos, m->nq);
+  mju_copy(s->qvel, d->qvel, nv);
+  mju_copy(s->ctrl, d->ctrl, nu);
+  s->time = d->time;
+  mj_forward(m, d);
+  if (d->ncon > s->pairs_capacity) {
+    int* pairs = (int*)realloc(s->pairs, sizeof(int) * 2 * (size_t)d->ncon);
+    if (!pairs) {
+      s->failed = 1;
+      return;
+    }
+    s->pairs = pairs;
+    s->pairs_capacity = d->ncon;
+  }
+  s->ncon = d->ncon;
+  for (int i = 0; i < d->ncon; i++) {
+    s->pairs[2 * i] = d->contact[i].geom[0];
+    s->pairs[2 * i + 1] = d->contact[i].geom[1];
+  }
+  mju_copy(s->sensor, d->sensordata, m->nsensordata);
+  integrate(m, d);
+  mju_copy(s->next_qpos, d->qpos, m->nq);
+  mju_copy(s->next_qvel, d->qvel, nv);
+
+  // controls: acceleration stage only; at an upper limit, difference inward
+  for (int j = 0; j < nu; j++) {
+    mjtNum h = eps;
+    if (m->actuator_ctrllimited[j] && !mjDISABLED(mjDSBL_CLAMPCTRL) &&
+        s->ctrl[j] + eps > m->actuator_ctrlrange[2 * j + 1]) {
+      h = -eps;
+    }
+    restore(m, d, s);
+    d->ctrl[j] += h;
+    evaluate(m, d, s, mjSTAGE_VEL);
+    if (h > 0) {
+      difference(m, s->next_qpos, s->next_qvel, s->sensor, s->plus_qpos, s->plus_qvel, s->plus_sensor, eps, s->column);
+    } else {
+      difference(m, s->plus_qpos, s->plus_qvel, s->plus_sensor, s->next_qpos, s->next_qvel, s->sensor, eps, s->column);
+    }
+    scatter(m, s->column, j, nu, B, D);
+  }
+
+  // velocities: velocity and acceleration stages (contacts cannot change)
+  for (int j = 0; j < nv; j++) {
+    restore(m, d, s);
+    d->qvel[j] += eps;
+    evaluate(m, d, s, mjSTAGE_POS);
+    difference(m, s->next_qpos, s->next_qvel, s->sensor, s->plus_qpos, s->plus_qvel, s->plus_sensor, eps, s->column);
+    scatter(m, s->column, nv + j, nx, A, C);
+  }
+
+  // positions: the full pipeline; a perturbation that makes or breaks a contact is retried on
+  // the other side, where the nominal contact set holds
+  for (int j = 0; j < nv; j++) {
+    restore(m, d, s);
+    mju_zero(s->dq, nv);
+    s->dq[j] = 1;
+    mj_integratePos(m, d->qpos, s->dq, eps);
+    if (evaluate(m, d, s, mjSTAGE_NONE)) {
+      difference(m, s->next_qpos, s->next_qvel, s->sensor, s->plus_qpos, s->plus_qvel, s->plus_sensor, eps, s->column);
+    } else {
+      mju_copy(s->ahead_qpos, s->plus_qpos, m->nq);
+      mju_copy(s->ahead_qvel, s->plus_qvel, nv);
+      mju_copy(s->ahead_sensor, s->plus_sensor, m->nsensordata);
+      restore(m, d, s);
+      mj_integratePos(m, d->qpos, s->dq, -eps);
+      if (evaluate(m, d, s, mjSTAGE_NONE)) {
+        flags[CITO_FLAG_ONE_SIDED]++;
+        difference(m, s->plus_qpos, s->plus_qvel, s->plus_sensor, s->next_qpos, s->next_qvel, s->sensor, eps, s->column);
+      } else {
+        flags[CITO_FLAG_UNRESOLVED]++;
+        difference(m, s->plus_qpos, s->plus_qvel, s->plus_sensor, s->ahead_qpos, s->ahead_qvel, s->ahead_sensor,
+                   2 * eps, s->column);
+      }
+    }
+    scatter(m, s->column, j, nx, A, C);
+  }
+
+  int warnings = 0;
+  for (int i = 0; i < mjNWARNING; i++) warnings += d->warning[i].number;
+  flags[CITO_FLAG_WARNINGS] = warnings;
+}
+
+static void* run_job(void* argument) {
+  Job* job = (Job*)argument;
+  const mjModel* m = job->m;
+  int nv = m->nv, nu = m->nu, ns = m->nsensordata, nx = 2 * nv;
+  int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
+  mjData* d = job->d;
+  mjtNum* buffer = (mjtNum*)calloc(4 * m->nq + 4 * nv + 4 * ns + nu + nv + nx + ns + 1, sizeof(mjtNum));
+  Scratch s = {0};
+  if (!buffer) {
+    job->failed = 1;
+  } else {
+    mjtNum* p = buffer;
+    s.qpos = p; p += m->nq;
+    s.next_qpos = p; p += m->nq;
+    s.plus_qpos = p; p += m->nq;
+    s.ahead_qpos = p; p += m->nq;
+    s.qvel = p; p += nv;
+    s.next_qvel = p; p += nv;
+    s.plus_qvel = p; p += nv;
+    s.ahead_qvel = p; p += nv;
+    s.sensor = p; p += ns;
+    s.plus_sensor = p; p += ns;
+    s.ahead_sensor = p; p += ns;
+    s.ctrl = p; p += nu;
+    s.dq = p; p += nv;
+    s.column = p;
+    for (int t = job->tid; t < job->T && !s.failed; t += job->nthread) {
+      linearize_step(m, d, &s, job->states + (size_t)t * nstate, job->controls + (size_t)t * nu, job->eps,
+                     job->A + (size_t)t * nx * nx, job->B + (size_t)t * nx * nu,
+                     job->C + (size_t)t * ns * nx, job->D + (size_t)t * ns * nu,
+                     job->flags + (size_t)t * CITO_NFLAG);
+    }
+    job->failed = s.failed;
+  }
+  free(s.pairs);
+  free(buffer);
+  return NULL;
+}
+
+int cito_linearize(const mjModel* m, mjData** datas, int nthread, int T, const mjtNum* states,
+                   const mjtNum* controls, mjtNum eps, mjtNum* A, mjtNum* B, mjtNum* C, mjtNum* D,
+                   int* flags, char* error, int error_size) {
+  if (m->na) {
+    snprintf(error, error_size, "models with actuator activations are not supported");
+    return -1;
+  }
+  if (m->opt.integrator != mjINT_EULER && m->opt.integrator != mjINT_IMPLICIT &&
+      m->opt.integrator != mjINT_IMPLICITFAST) {
+    snprintf(error, error_size, "only the Euler and implicit integrators are supported");
+    return -1;
+  }
+  if (nthread < 1) {
+    snprintf(error, error_size, "at least one mjData is needed");
+    return -1;
+  }
+  memset(flags, 0, sizeof(int) * (size_t)T * CITO_NFLAG);
+
+  Job* jobs = (Job*)calloc(nthread, sizeof(Job));
+  pthread_t* threads = (pthread_t*)calloc(nthread, sizeof(pthread_t));
+  int* started = (int*)calloc(nthread, sizeof(int));
+  if (!jobs || !threads || !started) {
+    free(jobs);
+    free(threads);
+    free(started);
+    snprintf(error, error_size, "out of memory");
+    return -1;
+  }
+  for (int i = 0; i < nthread; i++) {
+    jobs[i] = (Job){m, datas[i], T, states, controls, eps, nthread, i, A, B, C, D, flags, 0};
+  }
+  // each job on its own thread; a job whose thread cannot start runs on this one
+  for (int i = 1; i < nthread; i++) {
+    started[i] = pthread_create(&threads[i], NULL, run_job, &jobs[i]) == 0;
+  }
+  run_job(&jobs[0]);
+  for (int i = 1; i < nthread; i++) {
+    if (started[i]) {
+      pthread_join(threads[i], NULL);
+    } else {
+      run_job(&jobs[i]);
+    }
+  }
+  int failed = 0;
+  for (int i = 0; i < nthread; i++) failed |= jobs[i].failed;
+  free(started);
+  free(jobs);
+  free(threads);
+  if (failed) {
+    snprintf(error, error_size, "out of memory while linearizing");
+    return -1;
+  }
+  return 0;
+}
