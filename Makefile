@@ -10,7 +10,7 @@ setup:
 	@./scripts/setup.sh
 
 run: setup
-	@$(VENV)/bin/cito-plan
+	@$(VENV)/bin/cito-demo
 
 test: setup
 	@$(PY) -m pytest -q test

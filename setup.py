@@ -58,6 +58,9 @@ setup(
             "cito-scene = cito_ros.cli.scene:main",
             "cito-bench = cito_ros.cli.bench:main",
             "cito-plan = cito_ros.cli.plan:main",
+            "cito-planner-node = cito_ros.node:main",
+            "cito-demo = cito_ros.cli.demo:main",
+            "planner_node = cito_ros.node:main",
         ],
     },
 )

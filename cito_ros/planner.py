@@ -60,6 +60,7 @@ class SolverOptions:
     scale_variables: bool = True
     stall_iterations: int = 8       # stop when the best cost improved by less than
     stall_tolerance: float = 1e-6   # stall_tolerance * max(1, |cost|) over this many iterations
+    restarts: int = 2               # re-solves from the best point when the first solve ends short of the task
     ipopt: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -70,6 +71,7 @@ class SolverOptions:
                    scale_variables=bool(solver.get("scale_variables", True)),
                    stall_iterations=int(solver.get("stall_iterations", 8)),
                    stall_tolerance=float(solver.get("stall_tolerance", 1e-6)),
+                   restarts=int(solver.get("restarts", 2)),
                    ipopt=dict(solver.get("ipopt", {})))
 
     def __post_init__(self):
@@ -79,6 +81,8 @@ class SolverOptions:
         if not isinstance(self.stall_iterations, int) or self.stall_iterations < 1:
             raise ValueError(f"stall_iterations must be a positive integer, got {self.stall_iterations!r}")
         require_finite("stall_tolerance", self.stall_tolerance, nonnegative=True)
+        if not isinstance(self.restarts, int) or self.restarts < 0:
+            raise ValueError(f"restarts must be a non-negative integer, got {self.restarts!r}")
 
 
 @dataclass(frozen=True)
@@ -338,16 +342,34 @@ def plan_push(
 
 
 def _task(scene: Scene, initial_state: np.ndarray, target_position_m, target_yaw_rad, parameters) -> PushTask:
+    """The push target, checked against what pushing on this table can reach."""
     start = initial_state[1 + scene.object_qpos_adr:1 + scene.object_qpos_adr + 3]
+    task_config = parameters.get("task", {})
     if target_position_m is None:
-        push = require_finite("task.push_distance_m", parameters.get("task", {}).get("push_distance_m", 0.25))
-        return PushTask(start + np.array([push, 0.0, 0.0]), target_yaw_rad)
-    target = np.asarray(target_position_m, dtype=float)
-    if target.shape == (2,):
-        target = np.array([target[0], target[1], start[2]])
-    if target.shape != (3,):
-        raise ValueError(f"target position must be (x, y) or (x, y, z), got shape {target.shape}")
-    return PushTask(target, target_yaw_rad)
+        push = require_finite("task.push_distance_m", task_config.get("push_distance_m", 0.25))
+        target = start + np.array([push, 0.0, 0.0])
+    else:
+        target = np.asarray(target_position_m, dtype=float)
+        if target.shape == (2,):
+            target = np.array([target[0], target[1], start[2]])
+        if target.shape != (3,):
+            raise ValueError(f"target position must be (x, y) or (x, y, z), got shape {target.shape}")
+    task = PushTask(target, target_yaw_rad)
+    low, high, _ = scene.table_top()
+    half = float(scene.object_half_size[0])
+    if np.any(task.target_position_m[:2] < low + half) or np.any(task.target_position_m[:2] > high - half):
+        raise ValueError(f"target ({task.target_position_m[0]:.3f}, {task.target_position_m[1]:.3f}) m is off the "
+                         f"table: the object must end within x [{low[0] + half:.3f}, {high[0] - half:.3f}], "
+                         f"y [{low[1] + half:.3f}, {high[1] - half:.3f}] m")
+    height_tolerance = float(task_config.get("target_height_tolerance_m", 0.02))
+    if abs(task.target_position_m[2] - start[2]) > height_tolerance:
+        raise ValueError(f"target z {task.target_position_m[2]:.3f} m is not the object's resting height "
+                         f"{start[2]:.3f} m (+-{height_tolerance} m): pushing cannot lift it")
+    reach = float(task_config.get("max_reach_m", 1.25))
+    if np.linalg.norm(task.target_position_m[:2]) > reach:
+        raise ValueError(f"target is {np.linalg.norm(task.target_position_m[:2]):.3f} m from the arm base, beyond "
+                         f"the {reach} m the arm can push the object to")
+    return task
 
 
 @dataclass(frozen=True)
@@ -391,6 +413,21 @@ def optimize(problem: PushProblem, options: SolverOptions, continuation: Continu
     log += stage.log
     best = evaluate_plan(problem, stage.z, stage.status, time.perf_counter() - started, log, beta=beta,
                          initial_distance_m=initial_distance_m, success_position_error_m=success_position_error_m)
+    # A solve that stops short of the task has usually stalled at a contact kink, where the
+    # gradient is no descent direction. IPOPT restarted from its last iterate (a fresh
+    # quasi-Newton model and barrier) leaves the kink, and each restart chains from the
+    # previous one; the best plan of all is kept.
+    for _ in range(options.restarts):
+        if best.metrics.success or not stage.status.finished:
+            break
+        offset = log[-1].iteration + 1 if log else 0
+        stage = _solve_stage(problem, options, stage.z, problem.lower, problem.upper, started, offset, cancel,
+                             iteration_callback)
+        log += stage.log
+        result = evaluate_plan(problem, stage.z, stage.status, time.perf_counter() - started, log, beta=beta,
+                               initial_distance_m=initial_distance_m, success_position_error_m=success_position_error_m)
+        if _better(result, best):
+            best = result
     names = [v.name for v in problem.variables]
     if continuation.variable is not None and continuation.variable not in names:
         raise ValueError(f"continuation variable {continuation.variable!r} is not one of {problem.contact_model.name}'s "

@@ -28,6 +28,7 @@ OBJECT_CANDIDATE = "object_candidate"
 OBJECT_BODY = "object"
 OBJECT_GEOM = "object_geom"
 OBJECT_JOINT = "object_joint"
+TABLE_GEOM = "table"
 TABLE_TOP_Z_M = 0.025
 SETTLE_TIME_S = 0.3  # time for the object to settle into its table contact (several contact time constants)
 
@@ -229,7 +230,24 @@ class Scene:
         """Signed distance between the candidates at q0(beta) (the paper's phi_0)."""
         return self.signed_distance(self.data_at(start_configuration(beta)))
 
+    def table_top(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """(x, y) lower and upper corners of the table top and its height (m), world frame."""
+        table = self.model.geom(TABLE_GEOM)
+        centre, half = table.pos[:2], table.size[:2]
+        return centre - half, centre + half, float(table.pos[2] + table.size[2])
+
     def inward_normal(self, data: mujoco.MjData) -> np.ndarray:
         """Direction (world) in which the virtual force pushes the object: minus the
         object candidate's +x (its outward face normal)."""
         return -data.site_xmat[self.object_site_id].reshape(3, 3)[:, 0]
+
+    def inward_normals(self, object_quaternions: np.ndarray) -> np.ndarray:
+        """inward_normal for (n, 4) object orientations (w, x, y, z): (n, 3)."""
+        site_x = np.empty(3)
+        mujoco.mju_rotVecQuat(site_x, np.array([1.0, 0.0, 0.0]), self.model.site_quat[self.object_site_id])
+        q = np.asarray(object_quaternions, dtype=float)
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        w, u = q[:, :1], q[:, 1:]
+        # rotate site_x by each quaternion: v + 2 w (u x v) + 2 u x (u x v)
+        uv = np.cross(u, site_x)
+        return -(site_x + 2 * w * uv + 2 * np.cross(u, uv))

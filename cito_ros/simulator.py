@@ -37,8 +37,11 @@ class Trajectory:
     contact_control: np.ndarray        # (T,) contact actuator control (k or gamma, by model)
     stiffness_N: np.ndarray | None     # (T,) k, None for a model without stiffness (CCCM)
     gamma_N: np.ndarray                # (T,) virtual normal force
+    virtual_force_N: np.ndarray        # (T, 3) the virtual force on the object, world (gamma n)
     signed_distance_m: np.ndarray      # (T,) phi between the candidates
     contact_force_N: np.ndarray        # (T, 3) actual robot-on-object contact force (MuJoCo), world
+    contact_torque_Nm: np.ndarray      # (T, 3) its torque about contact_point_m, world
+    contact_point_m: np.ndarray        # (T, 3) force-weighted contact centroid, world
     contact_count: np.ndarray          # (T,) number of robot-object contacts
     ee_velocity_m_s: np.ndarray        # (T, 3) plate-centre velocity, world
     warnings: dict[str, int] = field(default_factory=dict)  # MuJoCo warnings raised during the rollout
@@ -183,8 +186,11 @@ class Simulator:
             contact_control=contact_control,
             stiffness_N=scene.contact_model.stiffness(contact_control),
             gamma_N=sensordata[:, sensors.gamma][:, 0].copy(),
+            virtual_force_N=sensordata[:, sensors.gamma] * scene.inward_normals(qpos[:-1, obj + 3:obj + 7]),
             signed_distance_m=scene.signed_distance_from_local(sensordata[:, sensors.robot_candidate_in_object]),
             contact_force_N=sensordata[:, sensors.contact_force].copy(),
+            contact_torque_Nm=sensordata[:, sensors.contact_torque].copy(),
+            contact_point_m=sensordata[:, sensors.contact_position].copy(),
             contact_count=sensordata[:, sensors.contact_found][:, 0].copy(),
             ee_velocity_m_s=sensordata[:, sensors.ee_velocity].copy(),
             warnings=warnings,

@@ -46,10 +46,19 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "$want" > "$stamp"
 fi
 
+# The cito_msgs interfaces (msg_defs/), rebuilt when their definitions change.
+msgs_stamp="$venv/.cito-msgs.sha"
+msgs_want="$(cd "$root" && find msg_defs scripts/build_msgs.sh -type f | sort | xargs cat | sha256sum | cut -d' ' -f1)"
+if [ "$(cat "$msgs_stamp" 2>/dev/null)" != "$msgs_want" ] || ! "$venv/bin/python" -c 'import cito_msgs.srv' 2>/dev/null; then
+  echo "[setup] building the cito_msgs interfaces"
+  quiet "$root/scripts/build_msgs.sh" "$venv"
+  echo "$msgs_want" > "$msgs_stamp"
+fi
+
 # The package itself (editable: models/ and config/ are read from this checkout),
 # rebuilt when its native code or build description changes.
 pkg_stamp="$venv/.cito-package.sha"
-pkg_want="$(cd "$root" && cat setup.py package.xml cito_ros/native/*.[ch] | sha256sum | cut -d' ' -f1)"
+pkg_want="$(cd "$root" && cat setup.py setup.cfg package.xml cito_ros/native/*.[ch] | sha256sum | cut -d' ' -f1)"
 if [ "$(cat "$pkg_stamp" 2>/dev/null)" != "$pkg_want" ] || ! "$venv/bin/python" -c 'import cito_ros._native' 2>/dev/null; then
   echo "[setup] building cito_ros (native MuJoCo plugins)"
   (cd "$root" && quiet "$venv/bin/python" -m pip install --no-build-isolation --no-deps -e .)

@@ -44,7 +44,7 @@ def test_plan_human_readable_with_target():
                  "--max-iter", "5")
     assert result.returncode == 0, result.stderr
     assert "position error" in result.stdout and "replay error" in result.stdout
-    assert "solving [" in result.stderr  # the progress bar
+    assert "solving, iteration" in result.stderr  # the progress display
 
 
 @pytest.mark.parametrize("args, message", [

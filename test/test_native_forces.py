@@ -80,3 +80,16 @@ def test_native_rollout_equals_the_oracle_rollout(simulators, oracle_scenes, sta
 def test_oracle_rollout_needs_the_oracle_scene(simulators, scenes, start_states):
     with pytest.raises(ValueError, match="needs the oracle scene"):
         oracle.rollout(simulators["vscm"], scenes["vscm"], start_states[5], np.zeros((20, 7)))
+
+
+def test_trajectory_virtual_force_is_gamma_along_the_inward_normal(simulators, start_states):
+    simulator = simulators["cccm"]
+    trajectory = simulator.rollout(start_states[6], np.zeros((20, 7)), np.full(20, 3.0))
+    scene = simulator.scene
+    for t in (0, 77, 199):
+        data = mujoco.MjData(scene.model)
+        data.qpos[scene.object_qpos_adr:scene.object_qpos_adr + 3] = trajectory.object_position_m[t]
+        data.qpos[scene.object_qpos_adr + 3:scene.object_qpos_adr + 7] = trajectory.object_quaternion[t]
+        mujoco.mj_kinematics(scene.model, data)
+        np.testing.assert_allclose(trajectory.virtual_force_N[t], trajectory.gamma_N[t] * scene.inward_normal(data),
+                                   atol=1e-12)

@@ -138,3 +138,17 @@ class TestBadOptions:
     def test_bad_solver_options(self, parameters, field, value, message):
         with pytest.raises(ValueError, match=message):
             dataclasses.replace(SolverOptions.from_parameters(parameters), **{field: value})
+
+
+class TestUnreachableTargets:
+    def test_off_the_table(self, parameters):
+        with pytest.raises(ValueError, match=r"target \(1.900, 0.000\) m is off the table"):
+            plan_push("vscm", 7, parameters=parameters, target_position_m=[1.9, 0.0])
+
+    def test_lifted(self, parameters):
+        with pytest.raises(ValueError, match="is not the object's resting height"):
+            plan_push("vscm", 7, parameters=parameters, target_position_m=[1.2, 0.0, 0.5])
+
+    def test_beyond_reach(self, parameters):
+        with pytest.raises(ValueError, match="beyond the 1.25 m the arm can push"):
+            plan_push("vscm", 7, parameters=parameters, target_position_m=[1.2, 0.5])

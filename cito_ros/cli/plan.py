@@ -53,12 +53,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.time_limit is not None:
             overrides["time_limit_s"] = args.time_limit
         options = dataclasses.replace(options, **overrides)
-        bar = None if args.json else ProgressBar(options.max_iter, "solving")
+        bar = None if args.json else ProgressBar(None, "solving, iteration")
 
         def progress(entry: IterationLog) -> None:
             if bar is not None:
-                bar.update(entry.iteration % options.max_iter or options.max_iter,
-                           f"it {entry.iteration} cost {entry.cost:.4g} viol {entry.constraint_violation:.1e}")
+                bar.update(entry.iteration, f"cost {entry.cost:.4g} violation {entry.constraint_violation:.1e}")
 
         target = None if args.target is None else args.target[:2]
         yaw = 0.0 if args.target is None else args.target[2]

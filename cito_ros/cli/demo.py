@@ -1,0 +1,98 @@
+"""cito-demo: the main job. Starts the planner node, calls /cito/plan_push from a
+client in this (separate) process for the default scene (VSCM, the configured
+beta, the object pushed task.push_distance_m along +x), prints a summary,
+leaves the bag, stops the node and exits 0 when a plan came back.
+
+    cito-demo [--contact-model {cccm,scm,vscm}] [--bag-directory DIR] [--timeout S]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from cito_ros.cli.progress import ProgressBar
+from cito_ros.config import SceneConfig, load_parameters
+from cito_ros.contact_models import CONTACT_MODELS
+from cito_ros.scene import TABLE_TOP_Z_M
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="cito-demo", description=__doc__.splitlines()[0])
+    parser.add_argument("--contact-model", choices=sorted(CONTACT_MODELS), default="vscm")
+    parser.add_argument("--bag-directory", type=Path, default=Path("bags"))
+    parser.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the plan")
+    args = parser.parse_args(argv)
+
+    # an isolated graph: a random domain on this host only, unless the caller chose one
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    node_bin = Path(sys.executable).parent / "cito-planner-node"
+    node = subprocess.Popen([str(node_bin), "--ros-args", "-p", f"node.bag_directory:={args.bag_directory.resolve()}",
+                             "--log-level", "warn"], env=os.environ.copy())
+    try:
+        return _call(args)
+    finally:
+        node.send_signal(signal.SIGINT)
+        try:
+            node.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            node.kill()
+
+
+def _call(args) -> int:
+    import rclpy
+    from cito_msgs.msg import SolverProgress
+    from cito_msgs.srv import PlanPush
+
+    parameters = load_parameters()
+    scene = SceneConfig.load(parameters["scene"])
+    x, y = scene.object.position_m
+    request = PlanPush.Request()
+    request.target_pose.position.x = x + float(parameters["task"]["push_distance_m"])
+    request.target_pose.position.y = y
+    request.target_pose.position.z = TABLE_TOP_Z_M + scene.object.half_size_m
+    request.target_pose.orientation.w = 1.0
+    request.contact_model = args.contact_model
+
+    rclpy.init()
+    client_node = rclpy.create_node("cito_demo_client")
+    try:
+        client = client_node.create_client(PlanPush, "/cito/plan_push")
+        if not client.wait_for_service(timeout_sec=30.0):
+            print("cito-demo: the planner node did not come up", file=sys.stderr)
+            return 1
+        bar = ProgressBar(None, f"planning ({args.contact_model}), iteration")
+        client_node.create_subscription(SolverProgress, "/cito/progress",
+                                        lambda m: bar.update(m.iteration, f"cost {m.cost:.4g}"), 100)
+        started = time.monotonic()
+        future = client.call_async(request)
+        rclpy.spin_until_future_complete(client_node, future, timeout_sec=args.timeout)
+        bar.close()
+        if not future.done():
+            print(f"cito-demo: no answer within {args.timeout} s", file=sys.stderr)
+            return 1
+        r = future.result()
+        print(f"plan-push ({args.contact_model}, beta {parameters['beta']:g}): status {r.status} "
+              f"({'SUCCESS' if r.success else 'no success'}) {r.message}")
+        print(f"  position error     {100 * r.position_error_m:8.2f} cm")
+        print(f"  orientation error  {r.orientation_error_rad:8.4f} rad")
+        print(f"  physical inacc.    {r.physical_inaccuracy_ns:8.4f} N s")
+        print(f"  replay error       {100 * r.replay_position_error_m:8.2f} cm (virtual force off)")
+        print(f"  solve time         {r.solve_time_s:8.2f} s ({r.iterations} iterations; "
+              f"round trip {time.monotonic() - started:.2f} s)")
+        print(f"  trajectory         {len(r.trajectory.points)} points, {len(r.contact_forces)} contact samples")
+        print(f"  bag                {r.bag_path}")
+        return 0
+    finally:
+        client_node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,225 @@
+"""Conversions between the ROS interfaces and the ROS-free planner.
+
+Requests become validated `PlanInputs` (or a ValueError that says what is
+wrong); a `PlanResult` becomes the response, the topic messages and the bag
+messages. Nothing here talks to the ROS graph.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from builtin_interfaces.msg import Duration, Time
+from cito_msgs.msg import ContactForce, PlanRequest, PlanResult as PlanResultMsg, SolverProgress
+from cito_msgs.srv import PlanPush
+from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3, Wrench
+from nav_msgs.msg import Path
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from cito_ros.contact_models import CONTACT_MODELS
+from cito_ros.planner import IterationLog, PlanResult, Status
+from cito_ros.scene import ARM_JOINTS
+
+Response = PlanPush.Response
+QUATERNION_MIN_NORM = 1e-6
+TILT_TOLERANCE_RAD = 1e-3  # largest roll/pitch accepted in a target orientation
+
+
+@dataclass(frozen=True)
+class PlanInputs:
+    """A validated request with its defaults resolved."""
+
+    contact_model: str
+    start_q: np.ndarray | None       # None: q0 of the configured beta
+    target_position_m: np.ndarray
+    target_yaw_rad: float
+    target_orientation: np.ndarray   # normalised quaternion (x, y, z, w)
+    time_limit_s: float
+
+
+def parse_request(request: PlanPush.Request, default_contact_model: str, default_time_limit_s: float) -> PlanInputs:
+    """Validate a PlanPush request. Raises ValueError with a message for the caller.
+
+    A non-unit quaternion is normalised; a zero, NaN or tilted one (roll or pitch beyond
+    1 mrad: the object stays flat on the table) is rejected.
+    """
+    p, o = request.target_pose.position, request.target_pose.orientation
+    position = np.array([p.x, p.y, p.z])
+    if not np.all(np.isfinite(position)):
+        raise ValueError(f"target_pose.position contains NaN or Inf: {position.tolist()}")
+    quaternion = np.array([o.x, o.y, o.z, o.w])
+    if not np.all(np.isfinite(quaternion)):
+        raise ValueError(f"target_pose.orientation contains NaN or Inf: {quaternion.tolist()}")
+    norm = float(np.linalg.norm(quaternion))
+    if norm < QUATERNION_MIN_NORM:
+        raise ValueError("target_pose.orientation is a zero quaternion; give a unit quaternion (w = 1 for no rotation)")
+    x, y, z, w = quaternion / norm
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    if abs(roll) > TILT_TOLERANCE_RAD or abs(pitch) > TILT_TOLERANCE_RAD:
+        raise ValueError(f"target_pose.orientation must be a rotation about z (the object stays flat on the table); "
+                         f"it has roll {roll:.4f} rad and pitch {pitch:.4f} rad")
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+    model = request.contact_model.strip().lower() or default_contact_model
+    if model not in CONTACT_MODELS:
+        raise ValueError(f"unknown contact model {request.contact_model!r}; choose one of {sorted(CONTACT_MODELS)} "
+                         "(or empty for the default)")
+
+    time_limit = request.time_limit_s
+    if not math.isfinite(time_limit) or time_limit < 0:
+        raise ValueError(f"time_limit_s must be a non-negative number (0: the default), got {time_limit}")
+    return PlanInputs(model, parse_start_state(request.start_state), position, yaw,
+                      np.array([x, y, z, w]), time_limit or default_time_limit_s)
+
+
+def parse_start_state(state: JointState) -> np.ndarray | None:
+    """Arm start configuration from a JointState (joints by name, any order), None if empty."""
+    if not state.name and not len(state.position):
+        return None
+    names = list(state.name)
+    if len(state.position) != len(names):
+        raise ValueError(f"start_state has {len(names)} names but {len(state.position)} positions")
+    if sorted(names) != sorted(ARM_JOINTS):
+        raise ValueError(f"start_state must name the joints {list(ARM_JOINTS)} exactly once each, got {names}")
+    positions = dict(zip(names, state.position))
+    q = np.array([positions[name] for name in ARM_JOINTS], dtype=float)
+    if not np.all(np.isfinite(q)):
+        raise ValueError("start_state.position contains NaN or Inf")
+    if len(state.velocity):
+        velocity = np.asarray(state.velocity, dtype=float)
+        if len(velocity) != len(names):
+            raise ValueError(f"start_state has {len(names)} names but {len(velocity)} velocities")
+        if not np.all(np.isfinite(velocity)) or np.any(np.abs(velocity) > 1e-6):
+            raise ValueError("start_state.velocity must be zero (or empty): the planner starts from rest")
+    return q
+
+
+def response_status(result: PlanResult) -> tuple[int, str]:
+    """The service status and a message for a finished plan."""
+    status = result.status
+    if status is Status.CANCELLED:
+        return Response.STATUS_CANCELLED, "the solve was cancelled; the best iterate is returned"
+    if status is Status.NUMERICAL_ERROR:
+        return Response.STATUS_NUMERICAL_ERROR, f"the planned motion is not finite or raised MuJoCo warnings " \
+                                                f"{result.trajectory.warnings}"
+    if status is Status.SOLVER_FAILED:
+        return Response.STATUS_SOLVER_FAILED, "IPOPT failed; the best iterate is returned"
+    error_cm = 100 * result.metrics.position_error_m
+    if result.metrics.success:
+        return Response.STATUS_SUCCEEDED, f"solver {status.value}; object ends {error_cm:.2f} cm from the target"
+    return Response.STATUS_TASK_NOT_ACHIEVED, f"solver {status.value}; object ends {error_cm:.2f} cm from the target"
+
+
+def time_msg(ns: int) -> Time:
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def duration_msg(seconds: float) -> Duration:
+    ns = int(round(seconds * 1e9))
+    return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def pose_msg(position: np.ndarray, quaternion_wxyz: np.ndarray) -> Pose:
+    w, x, y, z = (float(v) for v in quaternion_wxyz)
+    return Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
+                orientation=Quaternion(x=x, y=y, z=z, w=w))
+
+
+def vector(values: np.ndarray) -> Vector3:
+    return Vector3(x=float(values[0]), y=float(values[1]), z=float(values[2]))
+
+
+def request_msg(inputs: PlanInputs, start_q: np.ndarray, request_id: int, stamp_ns: int, frame_id: str) -> PlanRequest:
+    x, y, z, w = inputs.target_orientation
+    return PlanRequest(
+        header=Header(stamp=time_msg(stamp_ns), frame_id=frame_id), request_id=request_id,
+        target_pose=pose_msg(inputs.target_position_m, np.array([w, x, y, z])),
+        contact_model=inputs.contact_model,
+        start_state=JointState(header=Header(stamp=time_msg(stamp_ns), frame_id=frame_id), name=list(ARM_JOINTS),
+                               position=[float(v) for v in start_q]),
+        time_limit_s=float(inputs.time_limit_s))
+
+
+def progress_msg(entry: IterationLog, request_id: int, contact_model: str, stamp_ns: int, frame_id: str) -> SolverProgress:
+    return SolverProgress(header=Header(stamp=time_msg(stamp_ns), frame_id=frame_id), request_id=request_id,
+                          contact_model=contact_model, iteration=entry.iteration, cost=entry.cost,
+                          constraint_violation=entry.constraint_violation, elapsed_s=entry.elapsed_s)
+
+
+@dataclass(frozen=True)
+class PlanMessages:
+    """Everything a finished plan publishes; per-step messages are stamped along the horizon."""
+
+    trajectory: JointTrajectory
+    contact_forces: list[ContactForce]
+    object_poses: list[PoseStamped]
+    object_path: Path
+    result: PlanResultMsg
+    step_stamps_ns: list[int]   # the stamp of each contact force / object pose
+
+
+def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: str, bag_path: str,
+                  target_orientation: np.ndarray) -> PlanMessages:
+    """Build the messages of a plan whose horizon starts at stamp_ns."""
+    trajectory = result.trajectory
+    header = Header(stamp=time_msg(stamp_ns), frame_id=frame_id)
+    steps = len(trajectory.gamma_N)
+    dt = float(trajectory.time_s[1] - trajectory.time_s[0])
+    joint_trajectory = JointTrajectory(header=header, joint_names=list(ARM_JOINTS))
+    for t in range(steps + 1):
+        effort = trajectory.torque_Nm[min(t, steps - 1)]
+        joint_trajectory.points.append(JointTrajectoryPoint(
+            positions=trajectory.q[t].tolist(), velocities=trajectory.qdot[t].tolist(), effort=effort.tolist(),
+            time_from_start=duration_msg(t * dt)))
+    stamps = [stamp_ns + int(round(t * dt * 1e9)) for t in range(steps + 1)]
+    forces = []
+    for t in range(steps):
+        has_stiffness = trajectory.stiffness_N is not None
+        forces.append(ContactForce(
+            header=Header(stamp=time_msg(stamps[t]), frame_id=frame_id),
+            gamma_n=float(trajectory.gamma_N[t]), has_stiffness=has_stiffness,
+            stiffness_n=float(trajectory.stiffness_N[t]) if has_stiffness else 0.0,
+            signed_distance_m=float(trajectory.signed_distance_m[t]),
+            virtual_force=vector(trajectory.virtual_force_N[t]),
+            contact_count=int(trajectory.contact_count[t]),
+            contact_wrench=Wrench(force=vector(trajectory.contact_force_N[t]),
+                                  torque=vector(trajectory.contact_torque_Nm[t])),
+            contact_point=Point(x=float(trajectory.contact_point_m[t][0]), y=float(trajectory.contact_point_m[t][1]),
+                                z=float(trajectory.contact_point_m[t][2]))))
+    poses = [PoseStamped(header=Header(stamp=time_msg(stamps[t]), frame_id=frame_id),
+                         pose=pose_msg(trajectory.object_position_m[t], trajectory.object_quaternion[t]))
+             for t in range(steps + 1)]
+    status, message = response_status(result)
+    m = result.metrics
+    x, y, z, w = target_orientation
+    result_msg = PlanResultMsg(
+        header=header, request_id=request_id, success=m.success, status=status, solver_status=m.status,
+        message=message, contact_model=result.contact_model,
+        target_pose=pose_msg(result.target_position_m, np.array([w, x, y, z])),
+        final_object_pose=poses[-1].pose,
+        replay_object_pose=pose_msg(result.replay.object_position_m[-1], result.replay.object_quaternion[-1]),
+        position_error_m=m.position_error_m, orientation_error_rad=m.orientation_error_rad,
+        physical_inaccuracy_ns=m.physical_inaccuracy_Ns, replay_position_error_m=m.replay_position_error_m,
+        solve_time_s=m.solve_time_s, iterations=m.iterations, bag_path=bag_path)
+    return PlanMessages(joint_trajectory, forces, poses, Path(header=header, poses=poses), result_msg, stamps[:steps])
+
+
+def fill_response(response: PlanPush.Response, messages: PlanMessages) -> PlanPush.Response:
+    result = messages.result
+    response.success = result.success
+    response.status = result.status
+    response.message = result.message
+    response.trajectory = messages.trajectory
+    response.contact_forces = messages.contact_forces
+    response.position_error_m = result.position_error_m
+    response.orientation_error_rad = result.orientation_error_rad
+    response.physical_inaccuracy_ns = result.physical_inaccuracy_ns
+    response.replay_position_error_m = result.replay_position_error_m
+    response.solve_time_s = result.solve_time_s
+    response.iterations = result.iterations
+    response.bag_path = result.bag_path
+    return response
