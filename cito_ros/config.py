@@ -63,7 +63,8 @@ class SceneConfig:
     model: str
     timestep_s: float
     object: ObjectConfig
-    collisions: str  # "minimal" (the model's pair list) or "all" (every geom pair)
+    collisions: str  # "minimal" (a pair list) or "all" (every geom pair)
+    pairs: tuple[tuple[str, str], ...] | None = None  # the pair list instead of the model's (minimal only)
 
     COLLISION_MODES = ("minimal", "all")
 
@@ -88,6 +89,12 @@ class SceneConfig:
         collisions = raw.get("collisions", "minimal")
         if collisions not in cls.COLLISION_MODES:
             raise ValueError(f"scene {name}: collisions must be one of {cls.COLLISION_MODES}, got {collisions!r}")
+        pairs = raw.get("pairs")
+        if pairs is not None:
+            if collisions != "minimal" or not isinstance(pairs, list) or not all(
+                    isinstance(p, (list, tuple)) and len(p) == 2 and all(isinstance(g, str) for g in p) for p in pairs):
+                raise ValueError(f"scene {name}: pairs must be a list of [geom, geom] names, with collisions: minimal")
+            pairs = tuple((a, b) for a, b in pairs)
         return cls(
             name=name,
             description=str(raw.get("description", "")),
@@ -101,4 +108,5 @@ class SceneConfig:
                 friction=require_finite(f"scene {name}: object.friction", obj.get("friction", 0.5), nonnegative=True),
             ),
             collisions=collisions,
+            pairs=pairs,
         )

@@ -29,6 +29,7 @@ OBJECT_BODY = "object"
 OBJECT_GEOM = "object_geom"
 OBJECT_JOINT = "object_joint"
 TABLE_GEOM = "table"
+TABLE_TOP_GEOM = "table_top"
 TABLE_TOP_Z_M = 0.025
 SETTLE_TIME_S = 0.3  # time for the object to settle into its table contact (several contact time constants)
 
@@ -100,11 +101,14 @@ class Scene:
         body = spec.body(OBJECT_BODY)
         body.pos = [obj.position_m[0], obj.position_m[1], TABLE_TOP_Z_M + h]
         body.quat = [math.cos(obj.yaw_rad / 2), 0.0, 0.0, math.sin(obj.yaw_rad / 2)]
-        for pair in spec.pairs:
-            if OBJECT_GEOM in (pair.geomname1, pair.geomname2):
-                pair.friction[:2] = obj.friction
-        if config.collisions != "minimal":
-            raise ValueError(f"scene {config.name}: collisions mode {config.collisions!r} is not supported yet")
+        if config.collisions == "all":
+            self._collide_everything(spec, obj.friction)
+        else:
+            if config.pairs is not None:
+                self._replace_pairs(spec, config.pairs)
+            for pair in spec.pairs:
+                if OBJECT_GEOM in (pair.geomname1, pair.geomname2):
+                    pair.friction[:2] = obj.friction
 
         # Contact actuator: force at the robot candidate along the object candidate's outward
         # normal (its +x), reaction at the object candidate (MuJoCo site transmission with refsite).
@@ -121,6 +125,35 @@ class Scene:
         spec.add_sensor(name=GAMMA_SENSOR, type=mujoco.mjtSensor.mjSENS_ACTUATORFRC,
                         objtype=mujoco.mjtObj.mjOBJ_ACTUATOR, objname=CONTACT_ACTUATOR)
         return spec.compile()
+
+    @staticmethod
+    def _replace_pairs(spec: mujoco.MjSpec, pairs: tuple[tuple[str, str], ...]) -> None:
+        """Collide exactly the named geom pairs (sliding friction as in the model's first pair)."""
+        friction = float(spec.pairs[0].friction[0])
+        names = {geom.name for geom in spec.geoms}
+        for pair in list(spec.pairs):
+            spec.delete(pair)
+        for a, b in pairs:
+            unknown = [g for g in (a, b) if g not in names]
+            if unknown:
+                raise ValueError(f"collision pair [{a}, {b}]: no geom named {unknown[0]!r}; geoms: {sorted(names)}")
+            spec.add_pair(name=f"{a}__{b}", geomname1=a, geomname2=b, condim=3,
+                          friction=[friction, friction, 0.005, 0.0001, 0.0001])
+
+    @staticmethod
+    def _collide_everything(spec: mujoco.MjSpec, object_friction: float) -> None:
+        """The reference scene for 'model only what the scene needs': every geom in the broad
+        phase (full arm geometry, base, floor, table box), no pair list. The object's friction
+        wins in its contacts (geom priority), the rest keep the pair list's 0.5."""
+        pair_friction = float(spec.pairs[0].friction[0])
+        for pair in list(spec.pairs):
+            spec.delete(pair)
+        spec.delete(spec.geom(TABLE_TOP_GEOM))  # the table box collides itself now
+        for geom in spec.geoms:
+            geom.contype, geom.conaffinity, geom.condim = 1, 1, 3
+            geom.friction[0] = pair_friction
+        obj = spec.geom(OBJECT_GEOM)
+        obj.friction[0], obj.priority = object_friction, 1
 
     @staticmethod
     def _replace_plugin_motors(spec: mujoco.MjSpec) -> None:

@@ -58,3 +58,47 @@ def test_plan_rejects_bad_options(args, message):
     result = run("cito-plan", *args)
     assert result.returncode == 2
     assert message in result.stderr
+
+
+def test_bench_speed_vs_error_writes_table_csv_and_plot(tmp_path):
+    result = run("cito-bench", "speed-vs-error", "--quick", "--out", str(tmp_path), timeout=900)
+    assert result.returncode == 0, result.stderr
+    for name in ("speed_vs_error.csv", "speed_vs_error_runs.csv", "speed_vs_error.md", "speed_vs_error.png"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert "| VSCM | default |" in (tmp_path / "speed_vs_error.md").read_text()
+    assert "speed vs error" in result.stderr  # the progress display
+
+
+def test_bench_hard_json(tmp_path):
+    result = run("cito-bench", "hard", "--cases", "target_reached", "target_off_table", "--models", "scm",
+                 "--json", "--out", str(tmp_path), timeout=900)
+    assert result.returncode == 0, result.stderr
+    records = json.loads(result.stdout)
+    assert [(r["case"], r["contact_model"]) for r in records] == [("target_reached", "scm"), ("target_off_table", "scm")]
+    for record in records:
+        for key in ("case", "contact_model", "status", "success", "position_error_m", "replay_position_error_m",
+                    "solve_time_s"):
+            assert key in record
+    assert records[1]["status"] == "invalid_request"
+    assert (tmp_path / "hard_cases.md").is_file() and (tmp_path / "hard_cases.csv").is_file()
+
+
+def test_bench_hard_rejects_unknown_cases():
+    result = run("cito-bench", "hard", "--cases", "moon_landing")
+    assert result.returncode == 2 and "unknown cases ['moon_landing']" in result.stderr
+
+
+def test_bench_figures(tmp_path):
+    result = run("cito-bench", "figures", "--out", str(tmp_path), timeout=900)
+    assert result.returncode == 0, result.stderr
+    for name in ("snapshots.png", "vscm_stiffness.png", "contact_law.png", "contact_forces.png"):
+        assert (tmp_path / name).stat().st_size > 10_000, name
+
+
+@pytest.mark.slow
+def test_bench_collisions(tmp_path):
+    result = run("cito-bench", "collisions", "--json", "--out", str(tmp_path), timeout=1800)
+    assert result.returncode == 0, result.stderr
+    comparison = json.loads(result.stdout)["scenes"]
+    assert comparison["minimal"]["explicit_pairs"] == 11 and comparison["all collisions"]["explicit_pairs"] == 0
+    assert comparison["all collisions"]["geoms_in_broad_phase"] > comparison["minimal"]["geoms_in_broad_phase"] == 0

@@ -76,3 +76,31 @@ def test_bad_scene_values_are_rejected():
         SceneConfig.from_mapping("x", {"object": {"mass_kg": -1}})
     with pytest.raises(ValueError, match="position_m must be"):
         SceneConfig.from_mapping("x", {"object": {"position_m": [1, 2, 3]}})
+
+
+def test_a_scene_can_name_its_collision_pairs(tmp_path):
+    path = tmp_path / "plate_only.yaml"
+    path.write_text("object: {friction: 0.7}\npairs: [[plate, object_geom], [object_geom, table]]\n")
+    scene = Scene(contact_model("vscm"), SceneConfig.load(path))
+    model = scene.model
+    assert model.npair == 2
+    assert {frozenset((model.geom(int(a)).name, model.geom(int(b)).name))
+            for a, b in zip(model.pair_geom1, model.pair_geom2)} == {frozenset(("plate", "object_geom")),
+                                                                     frozenset(("object_geom", "table"))}
+    assert all(f == 0.7 for f in model.pair_friction[:, 0])
+
+
+def test_bad_collision_pairs_are_rejected(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("pairs: [[plate, nothing]]\n")
+    with pytest.raises(ValueError, match="no geom named 'nothing'"):
+        Scene(contact_model("vscm"), SceneConfig.load(path))
+    with pytest.raises(ValueError, match="pairs must be a list of"):
+        SceneConfig.from_mapping("x", {"pairs": [["plate"]]})
+
+
+def test_all_collisions_scene_puts_every_geom_in_the_broad_phase():
+    scene = Scene(contact_model("vscm"), "all_collisions")
+    model = scene.model
+    assert model.npair == 0 and np.all(model.geom_contype == 1) and np.all(model.geom_conaffinity == 1)
+    assert model.geom_priority[scene.object_geom_id] == 1

@@ -1,18 +1,27 @@
 """cito-bench: benchmarks that print measured figures.
 
-    cito-bench rollout [--json]              native vs Python-oracle rollout speed
-    cito-bench gradient [--json]             full-gradient time in rollout-equivalents
-    cito-bench paper [--json] [--out DIR]    the paper's nine cases, Tables I-IV
+    cito-bench rollout [--json]                   native vs Python-oracle rollout speed
+    cito-bench gradient [--json]                  full-gradient time in rollout-equivalents
+    cito-bench paper [--json] [--out DIR]         the paper's nine cases, Tables I-IV
+    cito-bench speed-vs-error [--out DIR]         solver effort against error, with a plot
+    cito-bench hard [--json] [--out DIR]          cases that stress the numerics
+    cito-bench collisions [--json] [--out DIR]    the minimal scene against all collisions
+    cito-bench figures [--out DIR]                snapshots and plots of planned motions
 """
 from __future__ import annotations
 
-import argparse
-import json
-import sys
-from pathlib import Path
+import os
 
-from cito_ros import benchmarks
-from cito_ros.cli.progress import ProgressBar
+# offscreen rendering for `figures`; read by mujoco when it is first imported
+os.environ.setdefault("MUJOCO_GL", "osmesa")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from cito_ros import benchmarks, studies  # noqa: E402
+from cito_ros.cli.progress import ProgressBar  # noqa: E402
 
 
 def print_rollout(result: dict) -> None:
@@ -34,6 +43,21 @@ def main(argv: list[str] | None = None) -> int:
     paper = commands.add_parser("paper", help="the paper's nine cases and Tables I-IV")
     paper.add_argument("--out", type=Path, default=Path("out/paper"), help="folder for the Markdown and CSV tables")
     paper.add_argument("--json", action="store_true", help="print the list of nine result objects")
+    sweep = commands.add_parser("speed-vs-error", help="solver effort against error (CSV, Markdown, PNG)")
+    sweep.add_argument("--out", type=Path, default=Path("out/speed_vs_error"))
+    sweep.add_argument("--quick", action="store_true", help="two settings, one case (a smoke run)")
+    sweep.add_argument("--json", action="store_true", help="print the per-setting summary")
+    hard = commands.add_parser("hard", help="cases that stress the numerics")
+    hard.add_argument("--out", type=Path, default=Path("out/hard"))
+    hard.add_argument("--cases", nargs="+", default=None, help="case names (default: all of config/hard_cases.yaml)")
+    hard.add_argument("--models", nargs="+", default=list(studies.MODELS), choices=studies.MODELS)
+    hard.add_argument("--repeat", type=int, default=1, help="run each case this many times (2: check identity)")
+    hard.add_argument("--json", action="store_true", help="print one object per case and contact model")
+    collisions = commands.add_parser("collisions", help="minimal collision pairs against all collisions")
+    collisions.add_argument("--out", type=Path, default=Path("out/collisions"))
+    collisions.add_argument("--json", action="store_true", help="print the comparison")
+    figures = commands.add_parser("figures", help="snapshots and plots of planned motions")
+    figures.add_argument("--out", type=Path, default=Path("docs/figures"))
     args = parser.parse_args(argv)
 
     if args.command == "rollout":
@@ -65,6 +89,57 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print(benchmarks.paper_tables(results))
             print("written: " + ", ".join(str(p) for p in paths))
+    elif args.command == "speed-vs-error":
+        variants = [v for v in studies.VARIANTS if v.name in ("default", "max_iter 10")] if args.quick \
+            else list(studies.VARIANTS)
+        cases = studies.SWEEP_CASES[2:3] if args.quick else studies.SWEEP_CASES
+        total = sum(len(cases) for v in variants for m in studies.MODELS if m in v.models)
+        bar = ProgressBar(total, "speed vs error")
+        records = studies.speed_vs_error(variants, cases, progress=lambda done, note: bar.update(done, note))
+        bar.close()
+        summary = studies.speed_vs_error_summary(records)
+        args.out.mkdir(parents=True, exist_ok=True)
+        table = studies.speed_vs_error_table(summary)
+        (args.out / "speed_vs_error.md").write_text(table)
+        paths = [studies.write_csv(args.out / "speed_vs_error_runs.csv", records),
+                 studies.write_csv(args.out / "speed_vs_error.csv", summary),
+                 args.out / "speed_vs_error.md",
+                 studies.speed_vs_error_plot(summary, args.out / "speed_vs_error.png")]
+        print(json.dumps(summary) if args.json else table)
+        print("written: " + ", ".join(str(p) for p in paths), file=sys.stderr if args.json else sys.stdout)
+    elif args.command == "hard":
+        if args.repeat < 1:
+            parser.error("--repeat must be at least 1")
+        known = studies.load_cases()
+        unknown = [c for c in args.cases or [] if c not in known]
+        if unknown:
+            parser.error(f"unknown cases {unknown}; choose from {sorted(known)}")
+        names = args.cases or list(known)
+        bar = ProgressBar(len(names) * len(args.models), "hard cases")
+        records = studies.hard_cases(args.models, names, args.repeat, progress=lambda d, n: bar.update(d, n))
+        bar.close()
+        args.out.mkdir(parents=True, exist_ok=True)
+        report = studies.hard_report(records)
+        (args.out / "hard_cases.md").write_text(report)
+        (args.out / "hard_cases.json").write_text(json.dumps(records, indent=1))
+        studies.write_csv(args.out / "hard_cases.csv", records)
+        print(json.dumps(records) if args.json else report)
+    elif args.command == "collisions":
+        bar = ProgressBar(18, "collisions")
+        result = studies.collision_cost(progress=lambda d, n: bar.update(d, n))
+        bar.close()
+        args.out.mkdir(parents=True, exist_ok=True)
+        report = studies.collision_report(result)
+        (args.out / "collisions.md").write_text(report)
+        (args.out / "collisions.json").write_text(json.dumps(result, indent=1))
+        print(json.dumps(result) if args.json else report)
+    elif args.command == "figures":
+        from cito_ros import figures as figure_module
+
+        bar = ProgressBar(5, "figures")
+        paths = figure_module.figures(args.out, progress=lambda d, n: bar.update(d, n))
+        bar.close()
+        print("written: " + ", ".join(str(p) for p in paths))
     return 0
 
 

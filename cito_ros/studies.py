@@ -1,0 +1,315 @@
+"""The user's three asks as measured studies: speed against error, numerical stability on
+hard cases, and the cost of modelling more than the scene needs. Each returns records
+(JSON-serialisable) and writes CSV / Markdown (and a plot) into an output folder.
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import statistics
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+import numpy as np
+
+from cito_ros import benchmarks
+from cito_ros.cases import Case, load_cases, run_case  # noqa: F401  (load_cases: for the CLI)
+from cito_ros.config import load_parameters
+from cito_ros.contact_models import contact_model
+from cito_ros.problem import ProblemSettings, PushProblem, PushTask
+from cito_ros.scene import Scene, start_configuration
+from cito_ros.simulator import Simulator
+
+MODELS = ("cccm", "scm", "vscm")
+Progress = Callable[[int, str], None]
+
+
+def set_nested(tree: dict[str, Any], dotted: str, value: Any) -> None:
+    keys = dotted.split(".")
+    for key in keys[:-1]:
+        tree = tree.setdefault(key, {})
+    tree[keys[-1]] = value
+
+
+def _median(values: Iterable[float | None]) -> float | None:
+    present = [v for v in values if v is not None and math.isfinite(v)]
+    return statistics.median(present) if present else None
+
+
+def write_csv(path: Path, records: list[dict[str, Any]]) -> Path:
+    keys = list(dict.fromkeys(k for r in records for k in r if not isinstance(r[k], (dict, list))))
+    with open(path, "w", newline="") as stream:
+        writer = csv.DictWriter(stream, fieldnames=keys, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(records)
+    return path
+
+
+def _fmt(value: float | int | None, scale: float = 1.0, digits: int = 2) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
+    return f"{value * scale:.{digits}f}"
+
+
+# ---------------------------------------------------------------------------------- hard cases
+
+def hard_cases(models: Iterable[str] = MODELS, names: Iterable[str] | None = None, repeat: int = 1,
+               progress: Progress | None = None) -> list[dict[str, Any]]:
+    """Run the cases of config/hard_cases.yaml with each contact model. With repeat >= 2 every
+    run is repeated and `identical_on_repeat` says whether the plans were bit-identical."""
+    cases = load_cases()
+    selected = [cases[n] for n in (names or cases)]
+    runs = [(case, model) for case in selected for model in models]
+    records = []
+    for index, (case, model) in enumerate(runs):
+        if progress:
+            progress(index, f"{case.name} {model}")
+        record, result = run_case(case, model)
+        if repeat >= 2:
+            again, second = run_case(case, model)
+            record["identical_on_repeat"] = (result is None and second is None) or (
+                result is not None and second is not None
+                and np.array_equal(result.knot_torques_Nm, second.knot_torques_Nm)
+                and again["position_error_m"] == record["position_error_m"])
+        records.append(record)
+    if progress:
+        progress(len(runs), "done")
+    return records
+
+
+def hard_report(records: list[dict[str, Any]]) -> str:
+    models = list(dict.fromkeys(r["contact_model"] for r in records))
+    cases = list(dict.fromkeys(r["case"] for r in records))
+    by = {(r["case"], r["contact_model"]): r for r in records}
+    lines = ["### Per case: status, position error / replay error (cm), solve time (s)", "",
+             "| case | " + " | ".join(m.upper() for m in models) + " |", "|---|" + "---|" * len(models)]
+    for case in cases:
+        cells = []
+        for model in models:
+            r = by.get((case, model))
+            if r is None:
+                cells.append("")
+                continue
+            mark = "ok" if r["success"] else "fail"
+            cells.append(f"{r['status']} ({mark}) {_fmt(r['position_error_m'], 100, 1)} / "
+                         f"{_fmt(r['replay_position_error_m'], 100, 1)}, {r['solve_time_s']:.1f}")
+        lines.append(f"| {case} | " + " | ".join(cells) + " |")
+    lines += ["", "### Per contact model", "",
+              "| model | success | median position error (cm) | median replay error (cm) | median solve time (s) "
+              "| all finite | MuJoCo warnings | identical on repeat |", "|---|---|---|---|---|---|---|---|"]
+    for model in models:
+        rows = [r for r in records if r["contact_model"] == model]
+        posed = [r for r in rows if r["status"] != "invalid_request"]
+        repeats = [r["identical_on_repeat"] for r in rows if "identical_on_repeat" in r]
+        warned = sum(1 for r in rows if r.get("warnings"))
+        lines.append(
+            f"| {model.upper()} | {sum(r['success'] for r in rows)}/{len(rows)} | "
+            f"{_fmt(_median(r['position_error_m'] for r in posed), 100)} | "
+            f"{_fmt(_median(r['replay_position_error_m'] for r in posed), 100)} | "
+            f"{_fmt(_median(r['solve_time_s'] for r in posed))} | "
+            f"{'yes' if all(r['finite'] for r in rows) else 'NO'} | {warned} | "
+            f"{('yes' if all(repeats) else 'NO') if repeats else 'not run'} |")
+    invalid = sorted({(r["case"], r["message"]) for r in records if r["status"] == "invalid_request"})
+    if invalid:
+        lines += ["", "Cases that cannot be posed (status invalid_request, no exception):"]
+        lines += [f"- {case}: {message}" for case, message in invalid]
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------- speed vs error
+
+@dataclass(frozen=True)
+class Variant:
+    """A solver-effort setting: planner parameter overrides (dotted names) and case changes."""
+
+    name: str
+    overrides: Mapping[str, Any]
+    scene: str | None = None
+    control_period_s: float | None = None
+    models: tuple[str, ...] = MODELS
+
+
+VARIANTS = (
+    Variant("default", {}),
+    Variant("max_iter 10", {"solver.max_iter": 10, "solver.restarts": 0}),
+    Variant("max_iter 30", {"solver.max_iter": 30}),
+    Variant("loose tolerance", {"solver.ipopt.acceptable_obj_change_tol": 1e-2, "solver.stall_tolerance": 1e-3,
+                                "solver.stall_iterations": 3}),
+    Variant("no restarts", {"solver.restarts": 0}),
+    Variant("no continuation", {"continuation": {}}, models=("vscm",)),
+    Variant("forward differences", {"gradient.method": "forward_differences"}),
+    Variant("timestep 2 ms", {}, scene="fine_step"),
+    Variant("N = 10", {}, control_period_s=0.1),
+    Variant("N = 40", {}, control_period_s=0.025),
+)
+SWEEP_CASES = (
+    Case("paper beta=5", beta=5.0), Case("paper beta=6", beta=6.0), Case("paper beta=7", beta=7.0),
+    Case("target (+0.20, +0.10)", beta=6.0, push=(0.20, 0.10, 0.0)),
+    Case("target (+0.30, -0.05)", beta=6.0, push=(0.30, -0.05, 0.0)),
+)
+
+
+def speed_vs_error(variants: Iterable[Variant] = VARIANTS, cases: Iterable[Case] = SWEEP_CASES,
+                   models: Iterable[str] = MODELS, progress: Progress | None = None) -> list[dict[str, Any]]:
+    parameters = load_parameters()
+    runs = [(v, c, m) for v in variants for m in models if m in v.models for c in cases]
+    records = []
+    for index, (variant, case, model) in enumerate(runs):
+        if progress:
+            progress(index, f"{variant.name}: {model} {case.name}")
+        variant_parameters = copy.deepcopy(parameters)
+        for dotted, value in variant.overrides.items():
+            set_nested(variant_parameters, dotted, value)
+        run = replace(case, scene=variant.scene or case.scene,
+                      control_period_s=variant.control_period_s or case.control_period_s)
+        record, _ = run_case(run, model, variant_parameters)
+        records.append({"variant": variant.name, **record})
+    if progress:
+        progress(len(runs), "done")
+    return records
+
+
+def speed_vs_error_summary(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (contact model, variant): medians over the cases, and whether it is on the model's
+    Pareto front of (median solve time, median position error)."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in records:
+        groups.setdefault((r["contact_model"], r["variant"]), []).append(r)
+    rows = [{"contact_model": model, "variant": variant,
+             "median_solve_time_s": _median(r["solve_time_s"] for r in rs),
+             "median_position_error_m": _median(r["position_error_m"] for r in rs),
+             "median_replay_position_error_m": _median(r["replay_position_error_m"] for r in rs),
+             "success_rate": sum(r["success"] for r in rs) / len(rs), "cases": len(rs)}
+            for (model, variant), rs in groups.items()]
+    for row in rows:
+        peers = [p for p in rows if p["contact_model"] == row["contact_model"]]
+        for error, flag in (("median_position_error_m", "pareto"), ("median_replay_position_error_m", "pareto_replay")):
+            row[flag] = row[error] is not None and not any(
+                p is not row and p[error] is not None
+                and p["median_solve_time_s"] <= row["median_solve_time_s"] and p[error] <= row[error]
+                and (p["median_solve_time_s"] < row["median_solve_time_s"] or p[error] < row[error]) for p in peers)
+    return rows
+
+
+def speed_vs_error_table(summary: list[dict[str, Any]]) -> str:
+    lines = ["| contact model | setting | median solve time (s) | median position error (cm) | "
+             "median replay error (cm) | success | Pareto (position / replay) |", "|---|---|---|---|---|---|---|"]
+    for row in sorted(summary, key=lambda r: (r["contact_model"], r["median_solve_time_s"])):
+        front = " / ".join("*" if row[flag] else "-" for flag in ("pareto", "pareto_replay"))
+        lines.append(f"| {row['contact_model'].upper()} | {row['variant']} | {_fmt(row['median_solve_time_s'])} | "
+                     f"{_fmt(row['median_position_error_m'], 100)} | {_fmt(row['median_replay_position_error_m'], 100)} "
+                     f"| {row['success_rate']:.0%} | {front} |")
+    return "\n".join(lines) + "\n"
+
+
+def speed_vs_error_plot(summary: list[dict[str, Any]], path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
+    figure, axes = plt.subplots(1, 2, figsize=(13, 5.2), sharex=True)
+    for axis, key, flag, title in ((axes[0], "median_position_error_m", "pareto", "final position error"),
+                                   (axes[1], "median_replay_position_error_m", "pareto_replay",
+                                    "replay error (virtual force off)")):
+        for model in MODELS:
+            rows = sorted((r for r in summary if r["contact_model"] == model and r[key] is not None),
+                          key=lambda r: r["median_solve_time_s"])
+            if not rows:
+                continue
+            times = [r["median_solve_time_s"] for r in rows]
+            errors = [max(r[key], 1e-5) * 100 for r in rows]
+            axis.scatter(times, errors, color=colors[model], label=model.upper(), s=36, zorder=3)
+            for r, t, e in zip(rows, times, errors):
+                axis.annotate(r["variant"], (t, e), fontsize=7, xytext=(3, 3), textcoords="offset points",
+                              color=colors[model])
+            front = [r for r in rows if r[flag]]
+            axis.step([r["median_solve_time_s"] for r in front],
+                      [max(r[key], 1e-5) * 100 for r in front], where="post", color=colors[model], alpha=0.6,
+                      linewidth=1.5)
+            axis.scatter([r["median_solve_time_s"] for r in front], [max(r[key], 1e-5) * 100 for r in front],
+                         facecolors="none", edgecolors="black", s=110, linewidths=1.2, zorder=4)
+        axis.set_xscale("log")
+        axis.set_yscale("log")
+        axis.set_xlabel("median solve time (s)")
+        axis.set_ylabel(f"median {title} (cm)")
+        axis.set_title(f"speed against {title}")
+        axis.grid(True, which="both", alpha=0.3)
+    axes[0].legend(title="circled and joined: the model's\nPareto front (time vs this error)", fontsize=8,
+                   title_fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
+# ------------------------------------------------------------------------------- collisions
+
+def collision_cost(repeats: int = 50, progress: Progress | None = None) -> dict[str, Any]:
+    """The minimal scene (the pair list) against every geom pair colliding: rollout and gradient
+    speed, and solve time and errors on the paper's nine cases."""
+    parameters = load_parameters()
+    scenes = {"minimal": parameters["scene"], "all collisions": "all_collisions"}
+    timing = {}
+    for label, scene_name in scenes.items():
+        model = contact_model("vscm", parameters)
+        scene = Scene(model, scene_name)
+        settings = ProblemSettings.from_parameters(parameters, "vscm")
+        simulator = Simulator(scene, parameters["horizon_s"], parameters["control_period_s"], nthread=settings.threads)
+        state = scene.initial_state(start_configuration(parameters["beta"]))
+        controls = simulator.step_controls(simulator.knot_controls(benchmarks.benchmark_torques(simulator),
+                                                                   np.full(simulator.n_knots, 100.0)))[None]
+        start = state[1 + scene.object_qpos_adr:1 + scene.object_qpos_adr + 3]
+        problem = PushProblem(simulator, state, PushTask(start + np.array([0.25, 0.0, 0.0])), settings)
+        points = iter([problem.initial_guess + 1e-3 * i * problem.scale for i in range(10 ** 6)])
+
+        def gradient():
+            problem.derivatives(next(points))
+
+        timing[label] = {
+            "rollout_ms": benchmarks.median_ms(lambda: simulator.rollout_batch(state[None], controls), repeats),
+            "gradient_ms": benchmarks.median_ms(gradient, max(5, repeats // 5)),
+            "geoms_in_broad_phase": int(np.count_nonzero(scene.model.geom_contype | scene.model.geom_conaffinity)),
+            "explicit_pairs": int(scene.model.npair),
+        }
+    cases = [Case(f"paper beta={b}", beta=float(b), scene=s) for s in scenes.values() for b in (5, 6, 7)]
+    records = []
+    runs = [(case, model) for case in cases for model in MODELS]
+    for index, (case, model) in enumerate(runs):
+        if progress:
+            progress(index, f"{case.scene} {model} {case.name}")
+        record, _ = run_case(case, model)
+        records.append({"scene": case.scene, **record})
+    if progress:
+        progress(len(runs), "done")
+    for label, scene_name in scenes.items():
+        rows = [r for r in records if r["scene"] == scene_name]
+        timing[label].update(
+            median_solve_time_s=_median(r["solve_time_s"] for r in rows),
+            median_position_error_m=_median(r["position_error_m"] for r in rows),
+            median_replay_position_error_m=_median(r["replay_position_error_m"] for r in rows),
+            successes=sum(r["success"] for r in rows), cases=len(rows))
+    return {"scenes": timing, "runs": records}
+
+
+def collision_report(result: dict[str, Any]) -> str:
+    scenes = result["scenes"]
+    minimal, full = scenes["minimal"], scenes["all collisions"]
+    lines = ["| | minimal (pair list) | all collisions | all / minimal |", "|---|---|---|---|"]
+    for key, label, scale in (("geoms_in_broad_phase", "geoms in the broad phase", 1),
+                              ("explicit_pairs", "explicit pairs", 1),
+                              ("rollout_ms", "1 s rollout (ms, median)", 1),
+                              ("gradient_ms", "full VSCM gradient (ms, median)", 1),
+                              ("median_solve_time_s", "median solve time, 9 paper cases (s)", 1),
+                              ("median_position_error_m", "median position error (cm)", 100),
+                              ("median_replay_position_error_m", "median replay error (cm)", 100)):
+        a, b = minimal[key], full[key]
+        ratio = f"{b / a:.2f}" if isinstance(a, (int, float)) and a and b is not None else "-"
+        lines.append(f"| {label} | {_fmt(a, scale)} | {_fmt(b, scale)} | {ratio} |")
+    lines.append(f"| task successes | {minimal['successes']}/{minimal['cases']} | {full['successes']}/{full['cases']} | |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,95 @@
+"""Numerical stability on hard cases (config/hard_cases.yaml): never NaN/Inf, MuJoCo warnings
+reported as a status, identical results when run twice, a clear status instead of an exception."""
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from cito_ros.cases import load_cases, result_is_finite, run_case
+from cito_ros.config import SceneConfig
+from cito_ros.contact_models import contact_model
+from cito_ros.planner import Status, evaluate_plan
+from cito_ros.problem import ProblemSettings, PushProblem, PushTask
+from cito_ros.scene import Scene, start_configuration
+from cito_ros.simulator import Simulator
+
+CASES = load_cases()
+STATUSES = {s.value for s in Status} | {"invalid_request"}
+EXPECTED = {"far_0.40m", "far_0.50m", "lateral_+0.15m", "lateral_-0.15m", "yaw_30deg", "yaw_45deg", "heavy_2kg",
+            "light_50g", "friction_0.2", "friction_1.2", "timestep_2ms", "knots_40", "near_joint_limits",
+            "target_reached", "target_off_table"}
+
+
+def check_record(record, result):
+    assert record["status"] in STATUSES
+    assert record["finite"]
+    if result is not None:
+        assert result_is_finite(result)
+        for key in ("position_error_m", "replay_position_error_m", "solve_time_s", "physical_inaccuracy_Ns"):
+            assert math.isfinite(record[key]), key
+        if record["warnings"]:
+            assert record["status"] == Status.NUMERICAL_ERROR.value
+
+
+def test_the_configured_cases_are_the_issue_list():
+    assert set(CASES) == EXPECTED
+
+
+def test_far_starts_are_0_4_and_0_5_m_away():
+    scene = Scene(contact_model("vscm"))
+    assert scene.initial_distance(CASES["far_0.40m"].beta) == pytest.approx(0.40, abs=0.01)
+    assert scene.initial_distance(CASES["far_0.50m"].beta) == pytest.approx(0.50, abs=0.01)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_every_case_ends_with_a_status_and_finite_numbers(name):
+    record, result = run_case(CASES[name], "scm")
+    check_record(record, result)
+
+
+def test_target_off_the_table_is_a_clear_failure():
+    record, result = run_case(CASES["target_off_table"], "vscm")
+    assert result is None and record["status"] == "invalid_request" and not record["success"]
+    assert "off the table" in record["message"]
+
+
+def test_a_target_already_reached_stays_reached():
+    record, result = run_case(CASES["target_reached"], "scm")
+    assert record["success"] and record["position_error_m"] < 0.02
+
+
+@pytest.mark.parametrize("name", ["lateral_+0.15m", "timestep_2ms", "knots_40"])
+def test_a_case_run_twice_gives_identical_results(name):
+    first, a = run_case(CASES[name], "scm")
+    second, b = run_case(CASES[name], "scm")
+    assert np.array_equal(a.knot_torques_Nm, b.knot_torques_Nm)
+    assert first["position_error_m"] == second["position_error_m"] and first["status"] == second["status"]
+
+
+def test_mujoco_warnings_are_reported_as_a_status(tmp_path, parameters):
+    """A 1 ug cube hit by 100 N accelerates past MuJoCo's limit (1e10): the rollout reports the
+    warning and a plan with it gets the numerical_error status, not garbage."""
+    path = tmp_path / "feather.yaml"
+    path.write_text("object: {half_size_m: 0.075, mass_kg: 1.0e-9, position_m: [0.99, 0.0], friction: 0.5}\n")
+    model = contact_model("cccm", parameters)
+    scene = Scene(model, SceneConfig.load(path))
+    simulator = Simulator(scene)
+    state = scene.initial_state(start_configuration(7))
+    trajectory = simulator.rollout(state, np.zeros((20, 7)), np.full(20, 100.0))
+    assert "mjWARN_BADQACC" in trajectory.warnings
+    problem = PushProblem(simulator, state, PushTask(np.array([1.24, 0.0, 0.1])),
+                          ProblemSettings.from_parameters(parameters, "cccm"))
+    z = problem.initial_guess.copy().reshape(20, 9)
+    z[:, 7] = 100.0
+    result = evaluate_plan(problem, z.ravel(), Status.CONVERGED, 0.0, [], beta=7.0, initial_distance_m=0.11,
+                           success_position_error_m=0.1)
+    assert result.status is Status.NUMERICAL_ERROR and not result.metrics.success
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("model", ["cccm", "vscm"])
+def test_every_case_with_the_other_models(model):
+    for name in sorted(EXPECTED):
+        record, result = run_case(CASES[name], model)
+        check_record(record, result)
