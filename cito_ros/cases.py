@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -29,7 +29,6 @@ class Case:
     start_q: tuple[float, ...] | None = None
     push: tuple[float, float, float] = (0.25, 0.0, 0.0)  # target relative to the cube's start: dx, dy (m), dyaw (rad)
     control_period_s: float | None = None
-    overrides: dict[str, Any] = field(default_factory=dict)  # planner parameters to replace
 
 
 def load_cases(path: str | Path | None = None) -> dict[str, Case]:
@@ -63,7 +62,6 @@ def run_case(case: Case, contact_model: str, parameters: Mapping[str, Any] | Non
              options: SolverOptions | None = None) -> tuple[dict[str, Any], PlanResult | None]:
     """Plan a case; return its record and the plan (None when the case cannot be posed)."""
     parameters = copy.deepcopy(dict(load_parameters() if parameters is None else parameters))
-    parameters.update(case.overrides)
     if case.control_period_s is not None:
         parameters["control_period_s"] = case.control_period_s
     record: dict[str, Any] = {"case": case.name, "contact_model": contact_model}

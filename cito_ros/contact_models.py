@@ -85,8 +85,8 @@ class ContactModel(abc.ABC):
 
     # ---------------------------------------------------------------- optimization
 
-    #: Decision variables this model adds at every knot.
-    knot_variables: ClassVar[tuple[KnotVariable, ...]] = ()
+    #: Decision variables this model adds at every knot (set per instance from its parameters).
+    knot_variables: tuple[KnotVariable, ...] = ()
     #: Index in knot_variables of the variable that is the contact control, or None (fixed control).
     control_variable: ClassVar[int | None] = None
 

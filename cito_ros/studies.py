@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable, Mapping
 import numpy as np
 
 from cito_ros import benchmarks
-from cito_ros.cases import Case, load_cases, run_case  # noqa: F401  (load_cases: for the CLI)
+from cito_ros.cases import Case, load_cases, run_case
 from cito_ros.config import load_parameters
 from cito_ros.contact_models import contact_model
 from cito_ros.problem import ProblemSettings, PushProblem, PushTask

@@ -2,7 +2,6 @@
 reported as a status, identical results when run twice, a clear status instead of an exception."""
 import math
 
-import mujoco
 import numpy as np
 import pytest
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from cito_ros.contact_models import contact_model
-from cito_ros.scene import Scene, start_configuration
+from cito_ros.scene import Scene
 from cito_ros.simulator import Simulator
 
 from conftest import approach_torques
