@@ -464,8 +464,7 @@ def optimize(problem: PushProblem, options: SolverOptions, continuation: Continu
             radius /= 2
         if not accepted:
             break
-    interrupted = [entry for entry in (latest,) if entry.status in (Status.CANCELLED, Status.TIME_LIMIT)]
-    status = interrupted[0].status if interrupted else best.status
+    status = latest.status if latest.status in (Status.CANCELLED, Status.TIME_LIMIT) else best.status
     # report the whole solve's time, iterations and interruption
     return _with_totals(best, status, time.perf_counter() - started, log)
 
@@ -488,9 +487,12 @@ def evaluate_plan(problem: PushProblem, z: np.ndarray, status: Status, solve_tim
     simulator, model = problem.simulator, problem.contact_model
     torques, variables = problem.split(z)
     control = model.contact_control(variables)
-    trajectory = simulator.rollout(problem.initial_state, torques, control)
+    # the optimizer's own rollout of z (usually cached) is the planned trajectory
+    evaluation = problem.evaluate(z)
+    trajectory = simulator.trajectory(problem.initial_state, evaluation.states, evaluation.sensordata,
+                                      simulator.step_controls(evaluation.knot_controls), evaluation.warnings)
     replay = simulator.rollout(problem.initial_state, torques, control, virtual_force=False)
-    derivative_info = dict(problem.evaluate(z).derivative_info)
+    derivative_info = dict(evaluation.derivative_info)
 
     def errors(result: Trajectory) -> tuple[float, float]:
         final = np.concatenate([result.object_position_m[-1], result.object_quaternion[-1]])

@@ -208,18 +208,14 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
     return PlanMessages(joint_trajectory, forces, poses, Path(header=header, poses=poses), result_msg, stamps[:steps])
 
 
+RESPONSE_FIELDS_FROM_RESULT = ("success", "status", "message", "position_error_m", "orientation_error_rad",
+                               "physical_inaccuracy_ns", "replay_position_error_m", "solve_time_s", "iterations",
+                               "bag_path")
+
+
 def fill_response(response: PlanPush.Response, messages: PlanMessages) -> PlanPush.Response:
-    result = messages.result
-    response.success = result.success
-    response.status = result.status
-    response.message = result.message
+    for name in RESPONSE_FIELDS_FROM_RESULT:
+        setattr(response, name, getattr(messages.result, name))
     response.trajectory = messages.trajectory
     response.contact_forces = messages.contact_forces
-    response.position_error_m = result.position_error_m
-    response.orientation_error_rad = result.orientation_error_rad
-    response.physical_inaccuracy_ns = result.physical_inaccuracy_ns
-    response.replay_position_error_m = result.replay_position_error_m
-    response.solve_time_s = result.solve_time_s
-    response.iterations = result.iterations
-    response.bag_path = result.bag_path
     return response

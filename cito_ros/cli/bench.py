@@ -21,6 +21,7 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from cito_ros import benchmarks, studies  # noqa: E402
+from cito_ros.cases import load_cases  # noqa: E402
 from cito_ros.cli.progress import ProgressBar  # noqa: E402
 
 
@@ -31,14 +32,21 @@ def print_rollout(result: dict) -> None:
     print(f"  batched      {result['batched_rollouts_per_s']:8.0f} rollouts/s on {result['batch_threads']} threads")
 
 
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cito-bench", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     rollout = commands.add_parser("rollout", help="native vs Python-oracle rollout speed")
-    rollout.add_argument("--repeats", type=int, default=200, help="timed native rollouts (median)")
+    rollout.add_argument("--repeats", type=positive_int, default=200, help="timed native rollouts (median)")
     rollout.add_argument("--json", action="store_true", help="print one JSON object")
     gradient = commands.add_parser("gradient", help="full-gradient time against one rollout")
-    gradient.add_argument("--repeats", type=int, default=20, help="timed gradients (median)")
+    gradient.add_argument("--repeats", type=positive_int, default=20, help="timed gradients (median)")
     gradient.add_argument("--json", action="store_true", help="print one JSON object")
     paper = commands.add_parser("paper", help="the paper's nine cases and Tables I-IV")
     paper.add_argument("--out", type=Path, default=Path("out/paper"), help="folder for the Markdown and CSV tables")
@@ -51,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     hard.add_argument("--out", type=Path, default=Path("out/hard"))
     hard.add_argument("--cases", nargs="+", default=None, help="case names (default: all of config/hard_cases.yaml)")
     hard.add_argument("--models", nargs="+", default=list(studies.MODELS), choices=studies.MODELS)
-    hard.add_argument("--repeat", type=int, default=1, help="run each case this many times (2: check identity)")
+    hard.add_argument("--repeat", type=positive_int, default=1, help="run each case this many times (2: check identity)")
     hard.add_argument("--json", action="store_true", help="print one object per case and contact model")
     collisions = commands.add_parser("collisions", help="minimal collision pairs against all collisions")
     collisions.add_argument("--out", type=Path, default=Path("out/collisions"))
@@ -61,16 +69,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     if args.command == "rollout":
-        if args.repeats < 1:
-            parser.error("--repeats must be at least 1")
         result = benchmarks.rollout_benchmark(repeats=args.repeats)
         if args.json:
             print(json.dumps(result))
         else:
             print_rollout(result)
     elif args.command == "gradient":
-        if args.repeats < 1:
-            parser.error("--repeats must be at least 1")
         result = benchmarks.gradient_benchmark(repeats=args.repeats)
         if args.json:
             print(json.dumps(result))
@@ -108,9 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(summary) if args.json else table)
         print("written: " + ", ".join(str(p) for p in paths), file=sys.stderr if args.json else sys.stdout)
     elif args.command == "hard":
-        if args.repeat < 1:
-            parser.error("--repeat must be at least 1")
-        known = studies.load_cases()
+        known = load_cases()
         unknown = [c for c in args.cases or [] if c not in known]
         if unknown:
             parser.error(f"unknown cases {unknown}; choose from {sorted(known)}")
