@@ -14,11 +14,10 @@ from typing import Callable
 import numpy as np
 
 from cito_ros import oracle
-from cito_ros.config import load_parameters
-from cito_ros.contact_models import contact_model
+from cito_ros.builder import PushRequest, build_problem
 from cito_ros.planner import plan_push
-from cito_ros.problem import ProblemSettings, PushProblem, PushTask
-from cito_ros.scene import Scene, start_configuration
+from cito_ros.scene import Scene
+from cito_ros.settings import load_settings
 from cito_ros.simulator import Simulator
 
 
@@ -41,12 +40,11 @@ def benchmark_torques(simulator: Simulator, seed: int = 0) -> np.ndarray:
 
 def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> dict:
     """Native vs Python-oracle rollout of the default horizon (VSCM, beta from config, k = k_max)."""
-    parameters = load_parameters()
-    model = contact_model("vscm", parameters)
-    scene = Scene(model, parameters["scene"])
-    oracle_scene = Scene(model, parameters["scene"], native=False)
-    simulator = Simulator(scene, parameters["horizon_s"], parameters["control_period_s"], nthread=nthread)
-    state = scene.initial_state(start_configuration(parameters["beta"]))
+    settings = load_settings()
+    posed = build_problem(settings, PushRequest("vscm"))
+    scene, state, model = posed.scene, posed.initial_state, posed.scene.contact_model
+    oracle_scene = Scene(model, settings.scene, native=False)
+    simulator = Simulator(scene, settings.horizon_s, settings.control_period_s, nthread=nthread)
     torques = benchmark_torques(simulator)
     stiffness = np.full(simulator.n_knots, model.stiffness_max)
     controls = simulator.step_controls(simulator.knot_controls(torques, stiffness))
@@ -78,26 +76,20 @@ def gradient_benchmark(repeats: int = 20, contact_model_name: str = "vscm") -> d
     """Time of the full gradient (cost over every decision variable; linearization, adjoint
     pass and terminal derivatives) against one bare native rollout of the same controls, at the
     optimizer's start (zero torques) perturbed a little per repeat (no cache hits)."""
-    parameters = load_parameters()
-    model = contact_model(contact_model_name, parameters)
-    scene = Scene(model, parameters["scene"])
-    settings = ProblemSettings.from_parameters(parameters, model.name)
-    simulator = Simulator(scene, parameters["horizon_s"], parameters["control_period_s"], nthread=settings.threads)
-    state = scene.initial_state(start_configuration(parameters["beta"]))
-    start = state[1 + scene.object_qpos_adr:1 + scene.object_qpos_adr + 3]
-    problem = PushProblem(simulator, state, PushTask(start + np.array([0.25, 0.0, 0.0])), settings)
+    settings = load_settings()
+    posed = build_problem(settings, PushRequest(contact_model_name))
+    problem, simulator, state = posed.problem, posed.simulator, posed.initial_state
     rng = np.random.default_rng(0)
     points = [np.clip(problem.initial_guess + 0.01 * rng.uniform(-1, 1, problem.size) * problem.scale,
                       problem.lower, problem.upper) for _ in range(repeats + 3)]
     gradient_samples, linearize_samples = [], []
     for i, z in enumerate(points):
-        evaluation = problem.evaluate(z)
+        problem.evaluate(z)
         start_time = time.perf_counter()
-        problem._linearize(evaluation)
+        problem.linearize(z)
         linearize_s = time.perf_counter() - start_time
-        evaluation.gradient = None
         start_time = time.perf_counter()
-        problem.derivatives(z)
+        problem.derivatives(z, cached=False)
         gradient_s = time.perf_counter() - start_time
         if i >= 3:  # warm-up
             gradient_samples.append(gradient_s)
@@ -106,10 +98,10 @@ def gradient_benchmark(repeats: int = 20, contact_model_name: str = "vscm") -> d
     rollout_ms = median_ms(lambda: simulator.rollout_batch(state[None], controls), 10 * repeats, warmup=10)
     gradient_ms = 1e3 * statistics.median(gradient_samples)
     return {
-        "contact_model": model.name,
+        "contact_model": problem.contact_model.name,
         "decision_variables": problem.size,
         "steps": simulator.n_steps,
-        "threads": settings.threads,
+        "threads": settings.gradient.threads,
         "gradient_ms": gradient_ms,
         "linearization_ms": 1e3 * statistics.median(linearize_samples),
         "rollout_ms": rollout_ms,

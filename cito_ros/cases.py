@@ -7,18 +7,17 @@ never an exception.
 """
 from __future__ import annotations
 
-import copy
-import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import yaml
 
-from cito_ros.config import SceneConfig, load_parameters
 from cito_ros.paths import config_path
-from cito_ros.planner import PlanResult, SolverOptions, plan_push
+from cito_ros.planner import plan_push
+from cito_ros.results import METRIC_NAMES, PlanResult
+from cito_ros.settings import SceneConfig, Settings, load_settings
 
 
 @dataclass(frozen=True)
@@ -49,36 +48,25 @@ def load_cases(path: str | Path | None = None) -> dict[str, Case]:
     return cases
 
 
-def result_is_finite(result: PlanResult) -> bool:
-    """No NaN or Inf in any array or metric of a plan."""
-    arrays = [result.knot_torques_Nm, result.knot_contact_control, *result.knot_variables.values()]
-    for trajectory in (result.trajectory, result.replay):
-        arrays += [value for value in vars(trajectory).values() if isinstance(value, np.ndarray)]
-    metrics = [v for v in vars(result.metrics).values() if isinstance(v, float)]
-    return all(bool(np.all(np.isfinite(a))) for a in arrays) and all(math.isfinite(v) for v in metrics)
-
-
-def run_case(case: Case, contact_model: str, parameters: Mapping[str, Any] | None = None,
-             options: SolverOptions | None = None) -> tuple[dict[str, Any], PlanResult | None]:
-    """Plan a case; return its record and the plan (None when the case cannot be posed)."""
-    parameters = copy.deepcopy(dict(load_parameters() if parameters is None else parameters))
-    if case.control_period_s is not None:
-        parameters["control_period_s"] = case.control_period_s
+def run_case(case: Case, contact_model: str, settings: Settings | None = None) -> tuple[dict[str, Any], PlanResult | None]:
+    """Plan a case; return its record (the metrics by name, with the case) and the plan (None when the
+    case cannot be posed: then status 'invalid_request' and the reason)."""
+    settings = load_settings() if settings is None else settings
     record: dict[str, Any] = {"case": case.name, "contact_model": contact_model}
     try:
+        if case.control_period_s is not None:
+            settings = settings.with_overrides({"control_period_s": case.control_period_s})
         scene = SceneConfig.load(case.scene)
         x, y = scene.object.position_m
         result = plan_push(contact_model, case.beta, start_q=None if case.start_q is None else np.array(case.start_q),
                            target_position_m=[x + case.push[0], y + case.push[1]], target_yaw_rad=case.push[2],
-                           scene=case.scene, options=options, parameters=parameters)
+                           scene=case.scene, settings=settings)
     except ValueError as error:
-        record.update(status="invalid_request", success=False, message=str(error), finite=True,
-                      position_error_m=None, orientation_error_rad=None, physical_inaccuracy_Ns=None,
-                      replay_position_error_m=None, solve_time_s=0.0, iterations=0, warnings={})
+        record.update({name: None for name in METRIC_NAMES})
+        record.update(status="invalid_request", success=False, message=str(error), finite=True, solve_time_s=0.0,
+                      iterations=0, warnings={}, initial_distance_m=None)
         return record, None
     summary = result.summary()
-    record.update({key: summary[key] for key in (
-        "status", "success", "position_error_m", "orientation_error_rad", "physical_inaccuracy_Ns",
-        "replay_position_error_m", "solve_time_s", "iterations", "warnings", "initial_distance_m")})
-    record.update(message="", finite=result_is_finite(result))
+    record.update({key: summary[key] for key in (*METRIC_NAMES, "warnings", "initial_distance_m")})
+    record.update(message="", finite=result.finite())
     return record, result

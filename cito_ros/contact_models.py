@@ -11,19 +11,21 @@ control and law:
 - VSCM: control = k_l, one per knot;       gamma = k exp(-(c/k) phi)   (native plugin), 0 at k = 0
 - CCCM: control = gamma_l, one per knot;   gamma = control              (plain MuJoCo force actuator)
 
-Parameters (k, c, bounds) come from config/planner.yaml; nothing here is a
-literal default.
+Parameters (k, c, bounds) come from the typed settings (config/planner.yaml);
+nothing here is a literal default.
 """
 from __future__ import annotations
 
 import abc
+import dataclasses
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import ClassVar
 
 import mujoco
 import numpy as np
 
-from cito_ros.config import load_parameters, require_finite
+from cito_ros.settings import ContactModelsSettings, Weights
+from cito_ros.typed_config import require_finite
 
 CONTACT_PLUGIN = "cito.virtual_contact"
 
@@ -85,7 +87,9 @@ class ContactModel(abc.ABC):
 
     # ---------------------------------------------------------------- optimization
 
-    #: Decision variables this model adds at every knot (set per instance from its parameters).
+    #: Names of the decision variables this model adds at every knot.
+    variable_names: ClassVar[tuple[str, ...]] = ()
+    #: Those variables with their bounds (set per instance from its parameters).
     knot_variables: tuple[KnotVariable, ...] = ()
     #: Index in knot_variables of the variable that is the contact control, or None (fixed control).
     control_variable: ClassVar[int | None] = None
@@ -96,7 +100,7 @@ class ContactModel(abc.ABC):
             return np.full(variables.shape[0], self.default_control())
         return variables[:, self.control_variable]
 
-    def variable_cost(self, variables: np.ndarray, weights: Mapping[str, float]) -> tuple[float, np.ndarray]:
+    def variable_cost(self, variables: np.ndarray, weights: Weights) -> tuple[float, np.ndarray]:
         """Cost terms on the knot variables alone, and their gradient (N, n_var)."""
         return 0.0, np.zeros_like(variables)
 
@@ -175,6 +179,7 @@ class VariableSmoothContactModel(_ExponentialLaw):
     description = "variable smooth contact model, stiffness per knot"
     control_name = "stiffness k (N)"
     control_variable = 0
+    variable_names = ("stiffness_N",)
 
     def __init__(self, stiffness_max: float, stiffness_initial: float, curvature: float):
         super().__init__(curvature)
@@ -182,7 +187,7 @@ class VariableSmoothContactModel(_ExponentialLaw):
         self.stiffness_initial = require_finite("vscm: stiffness_initial", stiffness_initial, nonnegative=True)
         if self.stiffness_initial > self.stiffness_max:
             raise ValueError(f"vscm: stiffness_initial {self.stiffness_initial} exceeds stiffness_max {self.stiffness_max}")
-        self.knot_variables = (KnotVariable("stiffness_N", 0.0, self.stiffness_max, self.stiffness_initial,
+        self.knot_variables = (KnotVariable(self.variable_names[0], 0.0, self.stiffness_max, self.stiffness_initial,
                                             self.stiffness_max),)
 
     def control_range(self):
@@ -200,6 +205,7 @@ class ComplementarityContactModel(ContactModel):
     description = "relaxed complementarity constraints, force per knot"
     control_name = "normal force gamma (N)"
     control_variable = 0
+    variable_names = ("gamma_N", "slack_Nm")
 
     def __init__(self, force_max: float, slack_max: float):
         self.force_max = require_finite("cccm: force_max", force_max, positive=True)
@@ -223,8 +229,8 @@ class ComplementarityContactModel(ContactModel):
     def variable_cost(self, variables, weights):
         slack = variables[:, 1]
         gradient = np.zeros_like(variables)
-        gradient[:, 1] = 2 * weights["w5"] * slack
-        return float(weights["w5"] * np.sum(slack ** 2)), gradient
+        gradient[:, 1] = 2 * weights.w5 * slack
+        return float(weights.w5 * np.sum(slack ** 2)), gradient
 
     def knot_constraints(self, mean_signed_distance_m, variables):
         phi, gamma, slack = mean_signed_distance_m, variables[:, 0], variables[:, 1]
@@ -247,16 +253,9 @@ CONTACT_MODELS: dict[str, type[ContactModel]] = {
 }
 
 
-def contact_model(name: str, parameters: Mapping[str, Any] | None = None) -> ContactModel:
-    """The contact model `name` ('cccm', 'scm' or 'vscm') with its parameters from config."""
+def contact_model(name: str, settings: ContactModelsSettings) -> ContactModel:
+    """The contact model `name` ('cccm', 'scm' or 'vscm') with its parameters from the settings."""
     if not isinstance(name, str) or name.lower() not in CONTACT_MODELS:
         raise ValueError(f"unknown contact model {name!r}; choose one of {sorted(CONTACT_MODELS)}")
     name = name.lower()
-    parameters = load_parameters() if parameters is None else parameters
-    section = parameters.get("contact_models", {}).get(name)
-    if not isinstance(section, Mapping):
-        raise ValueError(f"config has no contact_models.{name} section")
-    try:
-        return CONTACT_MODELS[name](**section)
-    except TypeError as error:
-        raise ValueError(f"contact_models.{name}: {error}") from None
+    return CONTACT_MODELS[name](**dataclasses.asdict(getattr(settings, name)))

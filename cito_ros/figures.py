@@ -16,10 +16,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from cito_ros.config import load_parameters  # noqa: E402
-from cito_ros.contact_models import contact_model  # noqa: E402
-from cito_ros.planner import PlanResult, plan_push  # noqa: E402
+from cito_ros.contact_models import SmoothContactModel, contact_model  # noqa: E402
+from cito_ros.planner import plan_push  # noqa: E402
+from cito_ros.results import PlanResult  # noqa: E402
 from cito_ros.scene import Scene  # noqa: E402
+from cito_ros.settings import Settings, load_settings  # noqa: E402
 
 COLORS = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
 SNAPSHOT_BETA = 7.0
@@ -62,14 +63,14 @@ def render_snapshots(result: PlanResult, scene: Scene, width: int = 480, height:
     return images
 
 
-def contact_law_figure(path: Path, parameters) -> Path:
+def contact_law_figure(path: Path, settings: Settings) -> Path:
     """gamma(phi) = k exp(-(c/k) phi) for several k and c (Fig. 1)."""
     phi = np.linspace(-0.02, 0.3, 400)
     figure, axis = plt.subplots(figsize=(6.4, 4.2))
-    configured_c = float(parameters["contact_models"]["vscm"]["curvature"])
+    configured_c = settings.contact_models.vscm.curvature
     for c, style in ((1e3, "--"), (configured_c, "-")):
         for k, color in ((10.0, "tab:green"), (50.0, "tab:orange"), (100.0, "tab:red")):
-            gamma = contact_model("scm", {"contact_models": {"scm": {"stiffness": k, "curvature": c}}}).gamma(phi, k)
+            gamma = SmoothContactModel(stiffness=k, curvature=c).gamma(phi, k)
             axis.plot(phi, gamma, style, color=color, label=f"k = {k:g} N, c = {c:g} N/m")
     axis.set_ylim(0, 120)
     axis.axvline(0, color="gray", linewidth=0.8)
@@ -85,15 +86,15 @@ def contact_law_figure(path: Path, parameters) -> Path:
 
 def figures(out: Path, progress: Callable[[int, str], None] | None = None) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
-    parameters = load_parameters()
-    written = [contact_law_figure(out / "contact_law.png", parameters)]
+    settings = load_settings()
+    written = [contact_law_figure(out / "contact_law.png", settings)]
     plans: dict[str, PlanResult] = {}
     runs = [("cccm", SNAPSHOT_BETA), ("scm", SNAPSHOT_BETA), ("vscm", 5.0), ("vscm", 6.0), ("vscm", SNAPSHOT_BETA)]
     vscm_by_beta = {}
     for index, (model, beta) in enumerate(runs):
         if progress:
             progress(index, f"planning {model} beta={beta:g}")
-        result = plan_push(model, beta, parameters=parameters)
+        result = plan_push(model, beta, settings=settings)
         if model == "vscm":
             vscm_by_beta[beta] = result
         if beta == SNAPSHOT_BETA:
@@ -105,7 +106,7 @@ def figures(out: Path, progress: Callable[[int, str], None] | None = None) -> li
     figure, axes = plt.subplots(3, 4, figsize=(16, 9.6))
     for row, model in enumerate(("cccm", "scm", "vscm")):
         result = plans[model]
-        scene = Scene(contact_model(model, parameters), parameters["scene"])
+        scene = Scene(contact_model(model, settings.contact_models), settings.scene)
         for column, (t, image) in enumerate(render_snapshots(result, scene)):
             axis = axes[row, column]
             axis.imshow(image)

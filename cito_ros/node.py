@@ -16,7 +16,6 @@ SIGINT/SIGTERM cancel a running solve, finish its bag and exit.
 from __future__ import annotations
 
 import concurrent.futures
-import dataclasses
 import itertools
 import signal
 import sys
@@ -40,10 +39,12 @@ from trajectory_msgs.msg import JointTrajectory
 from cito_ros import ros_messages
 from cito_ros.bag import BagWriter, TopicQos
 from cito_ros.paths import config_path
-from cito_ros.planner import SolverOptions, plan_push
+from cito_ros.planner import plan_push
 from cito_ros.scene import start_configuration
+from cito_ros.settings import Settings
 
 SERVICE = "/cito/plan_push"
+ROS_PARAMETERS = ("use_sim_time", "start_type_description_service")  # every rclpy node's own
 STEP_DEPTH = 1000  # a plan's per-step messages (200 at the default horizon) fit in one history
 
 
@@ -79,12 +80,12 @@ def nested(parameters: dict[str, Any]) -> dict[str, Any]:
 class PlannerNode(Node):
     def __init__(self):
         super().__init__("cito_planner", automatically_declare_parameters_from_overrides=True)
-        self.parameters = nested({name: p.value for name, p in self.get_parameters_by_prefix("").items()})
-        settings = self.parameters.get("node", {})
-        self.frame_id = str(settings.get("frame_id", "world"))
-        self.default_contact_model = str(settings.get("default_contact_model", "vscm"))
-        self.bag_directory = Path(str(settings.get("bag_directory", "bags"))).expanduser().resolve()
-        self.options = SolverOptions.from_parameters(self.parameters)  # fails fast on a bad solver section
+        self.settings = Settings.from_mapping(nested({name: p.value for name, p in
+                                                     self.get_parameters_by_prefix("").items()
+                                                     if name not in ROS_PARAMETERS}))
+        self.frame_id = self.settings.node.frame_id
+        self.default_contact_model = self.settings.node.default_contact_model
+        self.bag_directory = Path(self.settings.node.bag_directory).expanduser().resolve()
         self.bag_directory.mkdir(parents=True, exist_ok=True)
 
         group = ReentrantCallbackGroup()
@@ -108,7 +109,8 @@ class PlannerNode(Node):
             if self.cancel_event.is_set():
                 return self._reject(response, PlanPush.Response.STATUS_CANCELLED, "the node is shutting down")
             try:
-                inputs = ros_messages.parse_request(request, self.default_contact_model, self.options.time_limit_s)
+                inputs = ros_messages.parse_request(request, self.default_contact_model,
+                                                    self.settings.solver.time_limit_s)
             except ValueError as error:
                 return self._reject(response, PlanPush.Response.STATUS_INVALID_REQUEST, f"invalid request: {error}")
             request_id = next(self._request_ids)
@@ -131,7 +133,7 @@ class PlannerNode(Node):
         try:
             for topic, (_, interface, depth, latched) in TOPICS.items():
                 bag.add_topic(topic, interface, TopicQos(transient_local=latched, depth=depth))
-            start_q = inputs.start_q if inputs.start_q is not None else start_configuration(self.parameters["beta"])
+            start_q = inputs.start_q if inputs.start_q is not None else start_configuration(self.settings.beta)
             self._emit(bag, "/cito/plan_request",
                        ros_messages.request_msg(inputs, start_q, request_id, received_ns, self.frame_id), received_ns)
 
@@ -140,18 +142,18 @@ class PlannerNode(Node):
                 self._emit(bag, "/cito/progress", ros_messages.progress_msg(
                     entry, request_id, inputs.contact_model, now, self.frame_id), now)
 
-            options = dataclasses.replace(self.options, time_limit_s=inputs.time_limit_s)
+            settings = self.settings.with_overrides({"solver.time_limit_s": inputs.time_limit_s})
             self.get_logger().info(f"plan {request_id}: {inputs.contact_model} to "
                                    f"({inputs.target_position_m[0]:.3f}, {inputs.target_position_m[1]:.3f}) m, "
                                    f"yaw {inputs.target_yaw_rad:.3f} rad")
             try:
                 result = plan_push(inputs.contact_model, start_q=start_q, target_position_m=inputs.target_position_m,
-                                   target_yaw_rad=inputs.target_yaw_rad, options=options, parameters=self.parameters,
+                                   target_yaw_rad=inputs.target_yaw_rad, settings=settings,
                                    iteration_callback=progress, cancel=self.cancel_event)
             except ValueError as error:
-                failed = PlanResultMsg(request_id=request_id, success=False, bag_path=str(bag.path),
-                                                    status=PlanPush.Response.STATUS_INVALID_REQUEST,
-                                                    message=f"invalid request: {error}")
+                failed = PlanResultMsg(request_id=request_id, bag_path=str(bag.path),
+                                       status=PlanPush.Response.STATUS_INVALID_REQUEST,
+                                       message=f"invalid request: {error}")
                 failed.header.stamp = ros_messages.time_msg(received_ns)
                 failed.header.frame_id = self.frame_id
                 self._emit(bag, "/cito/plan_result", failed, received_ns)

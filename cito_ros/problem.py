@@ -1,4 +1,4 @@
-"""The single-shooting push problem of the paper (section II.C) and its exact derivatives.
+"""The single-shooting push problem of the paper (section II.C): layout, cost, constraints.
 
 ROS-free. Decision vector z, knot-major: at each of the N knots, the 7 joint
 torques u_l, then the contact model's knot variables (VSCM: k_l; CCCM: gamma_l,
@@ -13,92 +13,25 @@ end-effector (plate centre) speed squared and the virtual force squared.
 Constraints, when the contact model has any (CCCM), act on the knot means of the
 signed distance phi.
 
-Derivatives: every simulation step is linearized natively (`_native.linearize`:
-finite differences that skip unchanged pipeline stages, run on several threads
-and retry a perturbation on the other side when it makes or breaks a contact);
-an adjoint (reverse) pass over the steps then gives the gradient of the cost and
-the Jacobian of every constraint in one sweep. Where a perturbation switches
-contacts on both sides the linearization of that step is unreliable; the knots
-up to it are then differentiated by forward differences that restart from the
-saved state at each knot, batched through mujoco.rollout.
+A `PushProblem` is what a solver sees (cito_ros.solver.NlpProblem): size,
+bounds, scales, `evaluate` (cost and constraints, cached), `gradient` and
+`jacobian` (exact, from cito_ros.derivatives: an adjoint pass over the per-step
+linearizations, with knot-restart differences where a contact switch makes a
+step's linearization unreliable).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
 
 import mujoco
 import numpy as np
 
-from cito_ros import _native
-from cito_ros.config import require_finite
+from cito_ros import derivatives
 from cito_ros.scene import ARM_JOINTS
+from cito_ros.settings import DerivativeSettings, Weights
 from cito_ros.simulator import Simulator
-
-GRADIENT_METHODS = ("adjoint", "forward_differences")
-WEIGHT_NAMES = ("w1", "w2", "w3", "w4")
-
-
-@dataclass(frozen=True)
-class PushTask:
-    """Where the object should end: position (m, world) and yaw (rad) about world z."""
-
-    target_position_m: np.ndarray
-    target_yaw_rad: float = 0.0
-
-    def __post_init__(self):
-        position = np.asarray(self.target_position_m, dtype=float)
-        if position.shape != (3,):
-            raise ValueError(f"target position must have 3 coordinates, got shape {position.shape}")
-        if not np.all(np.isfinite(position)):
-            raise ValueError("target position contains NaN or Inf")
-        object.__setattr__(self, "target_position_m", position)
-        object.__setattr__(self, "target_yaw_rad", require_finite("target yaw", self.target_yaw_rad))
-
-    @property
-    def target_rotation(self) -> np.ndarray:
-        c, s = math.cos(self.target_yaw_rad), math.sin(self.target_yaw_rad)
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-@dataclass(frozen=True)
-class ProblemSettings:
-    """Cost weights and derivative settings (from config/planner.yaml)."""
-
-    weights: Mapping[str, float]
-    position_error_scale_min_m: float = 0.05
-    gradient_method: str = "adjoint"
-    epsilon: float = 1e-6
-    threads: int = 2
-    restart_step: float = 1e-4  # forward-difference step of the knot-restart method, relative to scale
-
-    @classmethod
-    def from_parameters(cls, parameters: Mapping[str, Any], contact_model_name: str) -> "ProblemSettings":
-        weights = parameters.get("weights", {}).get(contact_model_name)
-        if not isinstance(weights, Mapping):
-            raise ValueError(f"config has no weights.{contact_model_name} section")
-        gradient = parameters.get("gradient", {})
-        return cls(
-            weights={k: require_finite(f"weights.{contact_model_name}.{k}", v, nonnegative=True)
-                     for k, v in weights.items()},
-            position_error_scale_min_m=require_finite(
-                "task.position_error_scale_min_m",
-                parameters.get("task", {}).get("position_error_scale_min_m", 0.05), positive=True),
-            gradient_method=str(gradient.get("method", "adjoint")),
-            epsilon=require_finite("gradient.epsilon", gradient.get("epsilon", 1e-6), positive=True),
-            threads=int(gradient.get("threads", 2)),
-            restart_step=require_finite("gradient.restart_step", gradient.get("restart_step", 1e-4), positive=True),
-        )
-
-    def __post_init__(self):
-        missing = [w for w in WEIGHT_NAMES if w not in self.weights]
-        if missing:
-            raise ValueError(f"missing cost weights {missing}")
-        if self.gradient_method not in GRADIENT_METHODS:
-            raise ValueError(f"gradient method must be one of {GRADIENT_METHODS}, got {self.gradient_method!r}")
-        if self.threads < 1:
-            raise ValueError(f"gradient threads must be at least 1, got {self.threads}")
+from cito_ros.task import PushTask
 
 
 @dataclass
@@ -120,32 +53,18 @@ class Evaluation:
     derivative_info: dict[str, int] = field(default_factory=dict)
 
 
-def euler_angles(rotation: np.ndarray) -> np.ndarray:
-    """Roll, pitch, yaw (rad) of a rotation matrix, R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    return np.array([
-        math.atan2(rotation[2, 1], rotation[2, 2]),
-        math.asin(max(-1.0, min(1.0, -rotation[2, 0]))),
-        math.atan2(rotation[1, 0], rotation[0, 0]),
-    ])
-
-
-def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
-    rotation = np.empty(9)
-    mujoco.mju_quat2Mat(rotation, quaternion / np.linalg.norm(quaternion))
-    return rotation.reshape(3, 3)
-
-
 class PushProblem:
     """Cost, constraints and derivatives of pushing the object to `task` from `initial_state`."""
 
-    def __init__(self, simulator: Simulator, initial_state: np.ndarray, task: PushTask, settings: ProblemSettings):
+    def __init__(self, simulator: Simulator, initial_state: np.ndarray, task: PushTask, weights: Weights,
+                 derivative_settings: DerivativeSettings, position_error_scale_min_m: float):
         self.simulator = simulator
         self.scene = simulator.scene
         self.contact_model = self.scene.contact_model
         self.initial_state = simulator.validate_state(initial_state)
         self.task = task
-        self.settings = settings
-        self.weights = dict(settings.weights)
+        self.weights = weights
+        self.derivative_settings = derivative_settings
         model = self.scene.model
         self.n_knots, self.steps_per_knot, self.n_steps = simulator.n_knots, simulator.steps_per_knot, simulator.n_steps
         self.n_joints = len(ARM_JOINTS)
@@ -160,17 +79,11 @@ class PushProblem:
         self.scale = per_knot(limit, [v.scale for v in self.variables])
         self.initial_guess = per_knot(np.zeros(self.n_joints), [v.initial for v in self.variables])
 
-        data = mujoco.MjData(model)
-        mujoco.mj_setState(model, data, self.initial_state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        mujoco.mj_forward(model, data)
-        self.initial_object_position, _ = self.scene.object_pose(data)
+        self.initial_object_position = self.scene.object_qpos(self.initial_state)[:3].copy()
         self.initial_position_error_m = float(np.linalg.norm(self.initial_object_position - task.target_position_m))
-        self.position_scale = max(self.initial_position_error_m, settings.position_error_scale_min_m)
+        self.position_scale = max(self.initial_position_error_m, position_error_scale_min_m)
 
         sensors = self.scene.sensors
-        self.qpos_offset = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_TIME)
-        self.object_qpos = self.qpos_offset + self.scene.object_qpos_adr
-        self.object_dof = self.scene.object_dof_adr
         self.ee_rows = np.arange(sensors.ee_velocity.start, sensors.ee_velocity.stop)
         self.gamma_row = sensors.gamma.start
         self.local_rows = np.arange(sensors.robot_candidate_in_object.start, sensors.robot_candidate_in_object.stop)
@@ -182,7 +95,7 @@ class PushProblem:
         self.n_constraints = self.n_knots * self.n_constraints_per_knot
         self._cache: Evaluation | None = None
         # one mjData per linearization thread, owned here (the native code keeps none)
-        self._linearization_data = tuple(mujoco.MjData(model) for _ in range(settings.threads))
+        self._linearization_data = tuple(mujoco.MjData(model) for _ in range(derivative_settings.threads))
 
     # ------------------------------------------------------------------ layout
 
@@ -202,20 +115,25 @@ class PushProblem:
             np.zeros(self.n_knots), self.split(self.initial_guess)[1])
         return np.tile(constraints.lower, self.n_knots), np.tile(constraints.upper, self.n_knots)
 
+    def variable_column(self, name: str) -> int:
+        """Column of knot variable `name` within a knot's block of `width` decisions."""
+        names = [v.name for v in self.variables]
+        if name not in names:
+            raise ValueError(f"{name!r} is not one of {self.contact_model.name}'s knot variables {names}")
+        return self.n_joints + names.index(name)
+
     # ------------------------------------------------------------------ cost pieces
 
     def terminal_cost(self, object_qpos: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         """Final cost c_f, position error vector (m) and Euler-angle error (rad)."""
-        position_error = object_qpos[:3] - self.task.target_position_m
-        relative = self.task.target_rotation.T @ quaternion_matrix(object_qpos[3:7])
-        angle_error = euler_angles(relative)
-        cost = (self.weights["w1"] * float(np.sum((position_error / self.position_scale) ** 2))
-                + self.weights["w2"] * float(np.sum(angle_error ** 2)))
+        position_error, angle_error = self.task.pose_error(object_qpos)
+        cost = (self.weights.w1 * float(np.sum((position_error / self.position_scale) ** 2))
+                + self.weights.w2 * float(np.sum(angle_error ** 2)))
         return cost, position_error, angle_error
 
     def terminal_gradient(self, object_qpos: np.ndarray) -> np.ndarray:
         """d c_f / d(object pose) in MuJoCo's tangent space (world translation, local rotation)."""
-        gradient = 2 * self.weights["w1"] * (object_qpos[:3] - self.task.target_position_m) / self.position_scale ** 2
+        gradient = 2 * self.weights.w1 * (object_qpos[:3] - self.task.target_position_m) / self.position_scale ** 2
         rotation_gradient = np.zeros(3)
         h = 1e-6
         for axis in range(3):
@@ -223,8 +141,7 @@ class PushProblem:
             for sign in (1.0, -1.0):
                 quaternion = object_qpos[3:7].copy()
                 mujoco.mju_quatIntegrate(quaternion, np.eye(3)[axis], sign * h)
-                relative = self.task.target_rotation.T @ quaternion_matrix(quaternion)
-                values.append(self.weights["w2"] * float(np.sum(euler_angles(relative) ** 2)))
+                values.append(self.weights.w2 * float(np.sum(self.task.angle_error(quaternion) ** 2)))
             rotation_gradient[axis] = (values[0] - values[1]) / (2 * h)
         return np.concatenate([gradient, rotation_gradient])
 
@@ -236,12 +153,11 @@ class PushProblem:
     def _outputs(self, states: np.ndarray, sensordata: np.ndarray, variables: np.ndarray):
         """Cost terms, constraints and knot mean signed distances of one rollout."""
         w = self.weights
-        final_qpos = states[-1, self.object_qpos:self.object_qpos + 7]
-        terminal, _, _ = self.terminal_cost(final_qpos)
+        terminal, _, _ = self.terminal_cost(self.scene.object_qpos(states[-1]))
         speed2 = np.sum(sensordata[:, self.ee_rows] ** 2, axis=1)
         gamma = sensordata[:, self.gamma_row]
-        velocity_term = self.running_factor * w["w3"] * float(np.sum(speed2))
-        force_term = self.running_factor * w["w4"] * float(np.sum(gamma ** 2))
+        velocity_term = self.running_factor * w.w3 * float(np.sum(speed2))
+        force_term = self.running_factor * w.w4 * float(np.sum(gamma ** 2))
         variable_term, _ = self.contact_model.variable_cost(variables, w)
         phi = self.signed_distance(sensordata).reshape(self.n_knots, self.steps_per_knot).mean(axis=1)
         constraints = self.contact_model.knot_constraints(phi, variables)
@@ -271,48 +187,51 @@ class PushProblem:
 
     # ------------------------------------------------------------------ derivatives
 
-    def derivatives(self, z: np.ndarray) -> Evaluation:
+    def gradient(self, z: np.ndarray) -> np.ndarray:
+        return self.derivatives(z).gradient
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        return self.derivatives(z).jacobian
+
+    def derivatives(self, z: np.ndarray, *, cached: bool = True) -> Evaluation:
         """Evaluation with the cost gradient (size,) and constraint Jacobian (n_constraints, size)."""
         evaluation = self.evaluate(z)
-        if evaluation.gradient is not None:
+        if cached and evaluation.gradient is not None:
             return evaluation
         if not evaluation.finite:
             raise FloatingPointError("the rollout is not finite; no derivatives")
-        if self.settings.gradient_method == "forward_differences":
-            knots = self.n_knots
-            info = {"restarted_knots": knots}
-            gradient, jacobian = self._restart_differences(evaluation, knots)
+        if self.derivative_settings.method == "forward_differences":
+            info = {"restarted_knots": self.n_knots}
+            d_dynamics, d_phi = self._restart_differences(evaluation, self.n_knots)
         else:
-            gradient, jacobian, info = self._adjoint(evaluation)
-        evaluation.gradient, evaluation.jacobian, evaluation.derivative_info = gradient, jacobian, info
+            d_dynamics, d_phi, info = self._adjoint(evaluation)
+        _, variables = self.split(evaluation.z)
+        gradient = d_dynamics + self._knot_layout(self.contact_model.variable_cost(variables, self.weights)[1])
+        evaluation.gradient, evaluation.jacobian = gradient, self._constraint_jacobian(evaluation, d_phi)
+        evaluation.derivative_info = info
         return evaluation
 
-    def _linearize(self, evaluation: Evaluation):
-        model, T = self.scene.model, self.n_steps
-        nx, nu, ns = 2 * model.nv, model.nu, model.nsensordata
-        inputs = np.ascontiguousarray(np.vstack([self.initial_state[None], evaluation.states[:-1]]))
-        controls = np.ascontiguousarray(self.simulator.step_controls(evaluation.knot_controls))
-        A, B = np.empty((T, nx, nx)), np.empty((T, nx, nu))
-        C, D = np.empty((T, ns, nx)), np.empty((T, ns, nu))
-        flags = np.zeros((T, 3), dtype=np.int32)
-        _native.linearize(model._address, tuple(d._address for d in self._linearization_data), T, inputs, controls,
-                          self.settings.epsilon, A, B, C, D, flags)
-        return A, B, C, D, flags
+    def linearize(self, z: np.ndarray) -> derivatives.Linearization:
+        """The per-step linearization of the rollout of z."""
+        evaluation = self.evaluate(z)
+        states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
+        return derivatives.linearize(self.scene.model, self._linearization_data, states_before,
+                                     self.simulator.step_controls(evaluation.knot_controls),
+                                     self.derivative_settings.epsilon)
 
     def _adjoint(self, evaluation: Evaluation):
-        A, B, C, D, flags = self._linearize(evaluation)
+        """d(dynamic cost terms)/dz and d(knot mean phi)/dz through the dynamics, by the adjoint pass."""
+        linearization = self.linearize(evaluation.z)
         T, S, N = self.n_steps, self.steps_per_knot, self.n_knots
-        model = self.scene.model
-        nx = 2 * model.nv
+        nx = 2 * self.scene.model.nv
         sensordata = evaluation.sensordata
-        _, variables = self.split(evaluation.z)
         m = self.n_constraints_per_knot
         n_out = 1 + (N if m else 0)  # the cost, then the knot mean signed distances
 
         # d(outputs)/d(used sensor rows) per step: rows = [ee velocity (3), gamma, robot-in-object (3)]
         weights = np.zeros((T, len(self.used_rows), n_out))
-        weights[:, 0:3, 0] = 2 * self.running_factor * self.weights["w3"] * sensordata[:, self.ee_rows]
-        weights[:, 3, 0] = 2 * self.running_factor * self.weights["w4"] * sensordata[:, self.gamma_row]
+        weights[:, 0:3, 0] = 2 * self.running_factor * self.weights.w3 * sensordata[:, self.ee_rows]
+        weights[:, 3, 0] = 2 * self.running_factor * self.weights.w4 * sensordata[:, self.gamma_row]
         if m:
             local = sensordata[:, self.local_rows]
             offset = local - self.scene.object_candidate_in_geom
@@ -321,38 +240,26 @@ class PushProblem:
             d_phi_d_local = sign * offset / np.maximum(distance, 1e-12) / S
             knot_of_step = np.arange(T) // S
             weights[np.arange(T), 4:7, 1 + knot_of_step] = d_phi_d_local
-
-        # backward pass: lambda_t = A_t^T lambda_{t+1} + C_t^T w_t; only that recursion is sequential
-        sensor_terms = np.einsum("tsi,tso->tio", C[:, self.used_rows, :], weights)
-        adjoints = np.empty((T + 1, nx, n_out))
-        adjoints[T] = 0.0
-        final = evaluation.states[-1, self.object_qpos:self.object_qpos + 7]
-        adjoints[T, self.object_dof:self.object_dof + 6, 0] = self.terminal_gradient(final)
-        A_transposed = A.transpose(0, 2, 1)
-        for t in range(T - 1, -1, -1):
-            adjoints[t] = A_transposed[t] @ adjoints[t + 1] + sensor_terms[t]
-        # d(outputs)/d(controls) per step: B_t^T lambda_{t+1} + D_t^T w_t, summed over each knot
-        per_step = (np.einsum("tiu,tio->tuo", B, adjoints[1:])
-                    + np.einsum("tsu,tso->tuo", D[:, self.used_rows, :], weights))
-        d_controls = per_step.reshape(N, S, model.nu, n_out).sum(axis=1)
+        terminal = np.zeros((nx, n_out))
+        dof = self.scene.object_dof_adr
+        terminal[dof:dof + 6, 0] = self.terminal_gradient(self.scene.object_qpos(evaluation.states[-1]))
+        d_controls = derivatives.adjoint(linearization.A, linearization.B, linearization.C[:, self.used_rows, :],
+                                         linearization.D[:, self.used_rows, :], weights, terminal, S)
 
         gradient, d_phi = self._to_decisions(d_controls[:, :, 0]), None
-        info = {"one_sided_columns": int(flags[:, 0].sum()), "unresolved_columns": int(flags[:, 1].sum()),
-                "linearization_warnings": int(flags[:, 2].sum()), "restarted_knots": 0}
+        info = {**linearization.info(), "restarted_knots": 0}
         if m:
             d_phi = np.stack([self._to_decisions(d_controls[:, :, 1 + l]) for l in range(N)])
-        unresolved_steps = np.nonzero(flags[:, 1])[0]
-        if unresolved_steps.size:
-            knots = int(unresolved_steps.max() // S) + 1
+        unresolved = linearization.unresolved_steps
+        if unresolved.size:
+            knots = int(unresolved.max() // S) + 1
             info["restarted_knots"] = knots
-            fd_gradient, fd_d_phi = self._restart_differences(evaluation, knots, raw=True)
+            fd_gradient, fd_d_phi = self._restart_differences(evaluation, knots)
             columns = slice(0, knots * self.width)
             gradient[columns] = fd_gradient[columns]
             if m:
                 d_phi[:, columns] = fd_d_phi[:, columns]
-        variable_cost_gradient = self.contact_model.variable_cost(variables, self.weights)[1]
-        gradient += self._knot_layout(variable_cost_gradient)
-        return gradient, self._constraint_jacobian(evaluation, d_phi), info
+        return gradient, d_phi, info
 
     def _to_decisions(self, d_knot_controls: np.ndarray) -> np.ndarray:
         """Map d/d(knot controls) (N, nu) to d/dz (through the dynamics only)."""
@@ -383,50 +290,21 @@ class PushProblem:
                 jacobian[row, start:start + len(self.variables)] += constraints.d_variables[l, c]
         return jacobian
 
-    def _restart_differences(self, evaluation: Evaluation, knots: int, raw: bool = False):
-        """Forward differences of the outputs for the decisions of the first `knots` knots, each
-        perturbation rolled out from the saved state at the start of its knot.
+    def _restart_differences(self, evaluation: Evaluation, knots: int):
+        """d(dynamic cost terms)/dz and d(knot mean phi)/dz for the first `knots` knots by knot-restart
+        forward differences (cito_ros.derivatives.restart_differences)."""
+        _, variables = self.split(evaluation.z)
+        acting = [c for c in range(self.width) if c < self.n_joints
+                  or c - self.n_joints == self.contact_model.control_variable]
+        columns = [np.array([knot * self.width + c for c in acting]) for knot in range(knots)]
+        steps = self.derivative_settings.restart_step * self.scale
+        steps = np.where(evaluation.z + steps > self.upper, -steps, steps)
 
-        Returns (cost gradient, d(knot mean phi)/dz) with raw=True (dynamics only), else
-        (gradient incl. variable costs, constraint Jacobian).
-        """
-        S, N, width = self.steps_per_knot, self.n_knots, self.width
-        z = evaluation.z
+        def outputs(states, sensordata):
+            terms, _, phi = self._outputs(states, sensordata, variables)
+            return terms["terminal"] + terms["velocity"] + terms["force"], phi if self.n_constraints_per_knot else None
+
         states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
-        gradient = np.zeros(self.size)
-        m = self.n_constraints_per_knot
-        d_phi = np.zeros((N, self.size)) if m else None
-        _, base_variables = self.split(z)
-        base_terms, _, base_phi = self._outputs(evaluation.states, evaluation.sensordata, base_variables)
-        base_dynamic = base_terms["terminal"] + base_terms["velocity"] + base_terms["force"]
-        for knot in range(knots):
-            columns = np.arange(knot * width, (knot + 1) * width)
-            columns = columns[[self._affects_dynamics(c) for c in columns]]
-            steps = np.zeros((len(columns), (N - knot) * S, self.scene.model.nu))
-            perturbed = []
-            for row, column in enumerate(columns):
-                zp = z.copy()
-                h = self.settings.restart_step * self.scale[column]
-                if zp[column] + h > self.upper[column]:
-                    h = -h
-                zp[column] += h
-                perturbed.append(h)
-                steps[row] = self.simulator.step_controls(self.knot_controls(zp))[knot * S:]
-            start = np.repeat(states_before[knot * S][None], len(columns), axis=0)
-            states, sensordata, _ = self.simulator.rollout_batch(start, steps)
-            for row, column in enumerate(columns):
-                full_states = np.vstack([evaluation.states[:knot * S], states[row]])
-                full_sensors = np.vstack([evaluation.sensordata[:knot * S], sensordata[row]])
-                terms, _, phi = self._outputs(full_states, full_sensors, base_variables)
-                dynamic = terms["terminal"] + terms["velocity"] + terms["force"]
-                gradient[column] = (dynamic - base_dynamic) / perturbed[row]
-                if m:
-                    d_phi[:, column] = (phi - base_phi) / perturbed[row]
-        if raw:
-            return gradient, d_phi
-        gradient += self._knot_layout(self.contact_model.variable_cost(base_variables, self.weights)[1])
-        return gradient, self._constraint_jacobian(evaluation, d_phi)
-
-    def _affects_dynamics(self, column: int) -> bool:
-        offset = column % self.width
-        return offset < self.n_joints or offset - self.n_joints == self.contact_model.control_variable
+        return derivatives.restart_differences(
+            self.simulator, states_before, evaluation.states, evaluation.sensordata, evaluation.z, columns, steps,
+            lambda z: self.simulator.step_controls(self.knot_controls(z)), outputs)

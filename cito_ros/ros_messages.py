@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
-from cito_msgs.msg import ContactForce, PlanRequest, PlanResult as PlanResultMsg, SolverProgress
+from cito_msgs.msg import ContactForce, PlanMetrics, PlanRequest, PlanResult as PlanResultMsg, SolverProgress
 from cito_msgs.srv import PlanPush
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3, Wrench
 from nav_msgs.msg import Path
@@ -20,7 +20,7 @@ from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from cito_ros.contact_models import CONTACT_MODELS
-from cito_ros.planner import IterationLog, PlanResult, Status
+from cito_ros.results import IterationLog, Metrics, PlanResult, Status
 from cito_ros.scene import ARM_JOINTS
 
 Response = PlanPush.Response
@@ -114,6 +114,11 @@ def response_status(result: PlanResult) -> tuple[int, str]:
     return Response.STATUS_TASK_NOT_ACHIEVED, f"solver {status.value}; object ends {error_cm:.2f} cm from the target"
 
 
+def metrics_msg(metrics: Metrics) -> PlanMetrics:
+    """The PlanMetrics message: every Metrics field under its lower-cased name."""
+    return PlanMetrics(**{name.lower(): value for name, value in metrics.as_dict().items()})
+
+
 def time_msg(ns: int) -> Time:
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
@@ -194,28 +199,20 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
                          pose=pose_msg(trajectory.object_position_m[t], trajectory.object_quaternion[t]))
              for t in range(steps + 1)]
     status, message = response_status(result)
-    m = result.metrics
     x, y, z, w = target_orientation
     result_msg = PlanResultMsg(
-        header=header, request_id=request_id, success=m.success, status=status, solver_status=m.status,
-        message=message, contact_model=result.contact_model,
+        header=header, request_id=request_id, status=status, message=message, contact_model=result.contact_model,
         target_pose=pose_msg(result.target_position_m, np.array([w, x, y, z])),
         final_object_pose=poses[-1].pose,
         replay_object_pose=pose_msg(result.replay.object_position_m[-1], result.replay.object_quaternion[-1]),
-        position_error_m=m.position_error_m, orientation_error_rad=m.orientation_error_rad,
-        physical_inaccuracy_ns=m.physical_inaccuracy_Ns, replay_position_error_m=m.replay_position_error_m,
-        solve_time_s=m.solve_time_s, iterations=m.iterations, bag_path=bag_path)
+        metrics=metrics_msg(result.metrics), bag_path=bag_path)
     return PlanMessages(joint_trajectory, forces, poses, Path(header=header, poses=poses), result_msg, stamps[:steps])
 
 
-RESPONSE_FIELDS_FROM_RESULT = ("success", "status", "message", "position_error_m", "orientation_error_rad",
-                               "physical_inaccuracy_ns", "replay_position_error_m", "solve_time_s", "iterations",
-                               "bag_path")
-
-
 def fill_response(response: PlanPush.Response, messages: PlanMessages) -> PlanPush.Response:
-    for name in RESPONSE_FIELDS_FROM_RESULT:
-        setattr(response, name, getattr(messages.result, name))
+    result = messages.result
+    response.success, response.status, response.message = result.metrics.success, result.status, result.message
+    response.metrics, response.bag_path = result.metrics, result.bag_path
     response.trajectory = messages.trajectory
     response.contact_forces = messages.contact_forces
     return response

@@ -15,7 +15,8 @@ import mujoco
 import numpy as np
 
 from cito_ros import _native  # noqa: F401  (registers the cito.* engine plugins)
-from cito_ros.config import SceneConfig, require_finite
+from cito_ros.settings import SceneConfig
+from cito_ros.typed_config import require_finite
 from cito_ros.contact_models import ContactModel
 from cito_ros.paths import model_path
 
@@ -76,6 +77,8 @@ class Scene:
         object_joint = m.joint(OBJECT_JOINT)
         self.object_qpos_adr = int(object_joint.qposadr[0])
         self.object_dof_adr = int(object_joint.dofadr[0])
+        # where the object's qpos sits in a mjSTATE_FULLPHYSICS state (time, then qpos)
+        self._state_object_adr = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME) + self.object_qpos_adr
         self.robot_site_id = m.site(ROBOT_CANDIDATE).id
         self.object_site_id = m.site(OBJECT_CANDIDATE).id
         self.object_geom_id = m.geom(OBJECT_GEOM).id
@@ -253,6 +256,11 @@ class Scene:
         offset = data.site_xpos[self.robot_site_id] - data.geom_xpos[self.object_geom_id]
         local = data.geom_xmat[self.object_geom_id].reshape(3, 3).T @ offset
         return float(self.signed_distance_from_local(local))
+
+    def object_qpos(self, state: np.ndarray) -> np.ndarray:
+        """The object's pose (x, y, z, qw, qx, qy, qz) in a mjSTATE_FULLPHYSICS state, or in each of
+        (..., nstate) states (a view)."""
+        return state[..., self._state_object_adr:self._state_object_adr + 7]
 
     def object_pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Object position (m) and orientation quaternion (w, x, y, z), world frame."""

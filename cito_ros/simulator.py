@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from cito_ros.config import require_finite
+from cito_ros.typed_config import require_finite
 from cito_ros.scene import ARM_JOINTS, Scene
 
 FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS

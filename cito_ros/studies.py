@@ -4,7 +4,6 @@ hard cases, and the cost of modelling more than the scene needs. Each returns re
 """
 from __future__ import annotations
 
-import copy
 import csv
 import itertools
 import math
@@ -16,22 +15,12 @@ from typing import Any, Callable, Iterable, Mapping
 import numpy as np
 
 from cito_ros import benchmarks
+from cito_ros.builder import PushRequest, build_problem
 from cito_ros.cases import Case, load_cases, run_case
-from cito_ros.config import load_parameters
-from cito_ros.contact_models import contact_model
-from cito_ros.problem import ProblemSettings, PushProblem, PushTask
-from cito_ros.scene import Scene, start_configuration
-from cito_ros.simulator import Simulator
+from cito_ros.settings import load_settings
 
 MODELS = ("cccm", "scm", "vscm")
 Progress = Callable[[int, str], None]
-
-
-def set_nested(tree: dict[str, Any], dotted: str, value: Any) -> None:
-    keys = dotted.split(".")
-    for key in keys[:-1]:
-        tree = tree.setdefault(key, {})
-    tree[keys[-1]] = value
 
 
 def _median(values: Iterable[float | None]) -> float | None:
@@ -141,7 +130,7 @@ VARIANTS = (
     Variant("loose tolerance", {"solver.ipopt.acceptable_obj_change_tol": 1e-2, "solver.stall_tolerance": 1e-3,
                                 "solver.stall_iterations": 3}),
     Variant("no restarts", {"solver.restarts": 0}),
-    Variant("no continuation", {"continuation": {}}, models=("vscm",)),
+    Variant("no continuation", {"continuation.vscm": None}, models=("vscm",)),
     Variant("forward differences", {"gradient.method": "forward_differences"}),
     Variant("timestep 2 ms", {}, scene="fine_step"),
     Variant("N = 10", {}, control_period_s=0.1),
@@ -156,18 +145,15 @@ SWEEP_CASES = (
 
 def speed_vs_error(variants: Iterable[Variant] = VARIANTS, cases: Iterable[Case] = SWEEP_CASES,
                    models: Iterable[str] = MODELS, progress: Progress | None = None) -> list[dict[str, Any]]:
-    parameters = load_parameters()
+    settings = load_settings()
     runs = [(v, c, m) for v in variants for m in models if m in v.models for c in cases]
     records = []
     for index, (variant, case, model) in enumerate(runs):
         if progress:
             progress(index, f"{variant.name}: {model} {case.name}")
-        variant_parameters = copy.deepcopy(parameters)
-        for dotted, value in variant.overrides.items():
-            set_nested(variant_parameters, dotted, value)
         run = replace(case, scene=variant.scene or case.scene,
                       control_period_s=variant.control_period_s or case.control_period_s)
-        record, _ = run_case(run, model, variant_parameters)
+        record, _ = run_case(run, model, settings.with_overrides(variant.overrides))
         records.append({"variant": variant.name, **record})
     if progress:
         progress(len(runs), "done")
@@ -254,19 +240,14 @@ def speed_vs_error_plot(summary: list[dict[str, Any]], path: Path) -> Path:
 def collision_cost(repeats: int = 50, progress: Progress | None = None) -> dict[str, Any]:
     """The minimal scene (the pair list) against every geom pair colliding: rollout and gradient
     speed, and solve time and errors on the paper's nine cases."""
-    parameters = load_parameters()
-    scenes = {"minimal": parameters["scene"], "all collisions": "all_collisions"}
+    settings = load_settings()
+    scenes = {"minimal": settings.scene.source, "all collisions": "all_collisions"}
     timing = {}
     for label, scene_name in scenes.items():
-        model = contact_model("vscm", parameters)
-        scene = Scene(model, scene_name)
-        settings = ProblemSettings.from_parameters(parameters, "vscm")
-        simulator = Simulator(scene, parameters["horizon_s"], parameters["control_period_s"], nthread=settings.threads)
-        state = scene.initial_state(start_configuration(parameters["beta"]))
+        posed = build_problem(settings, PushRequest("vscm", scene=scene_name))
+        scene, simulator, state, problem = posed.scene, posed.simulator, posed.initial_state, posed.problem
         controls = simulator.step_controls(simulator.knot_controls(benchmarks.benchmark_torques(simulator),
                                                                    np.full(simulator.n_knots, 100.0)))[None]
-        start = state[1 + scene.object_qpos_adr:1 + scene.object_qpos_adr + 3]
-        problem = PushProblem(simulator, state, PushTask(start + np.array([0.25, 0.0, 0.0])), settings)
         calls = itertools.count()
 
         def gradient():  # a new point per call: no cache hits

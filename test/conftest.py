@@ -4,26 +4,26 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cito_ros.config import load_parameters
+from cito_ros.settings import load_settings
 from cito_ros.contact_models import contact_model
 from cito_ros.scene import Scene, start_configuration
 from cito_ros.simulator import Simulator
 
 
 @pytest.fixture(scope="session")
-def parameters():
-    return load_parameters()
+def settings():
+    return load_settings()
 
 
 @pytest.fixture(scope="session")
-def scenes(parameters):
+def scenes(settings):
     """Native scene per contact model name."""
-    return {name: Scene(contact_model(name, parameters)) for name in ("cccm", "scm", "vscm")}
+    return {name: Scene(contact_model(name, settings.contact_models)) for name in ("cccm", "scm", "vscm")}
 
 
 @pytest.fixture(scope="session")
-def oracle_scenes(parameters):
-    return {name: Scene(contact_model(name, parameters), native=False) for name in ("cccm", "scm", "vscm")}
+def oracle_scenes(settings):
+    return {name: Scene(contact_model(name, settings.contact_models), native=False) for name in ("cccm", "scm", "vscm")}
 
 
 @pytest.fixture(scope="session")

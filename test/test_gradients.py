@@ -1,21 +1,21 @@
 """Exact derivatives: the adjoint gradient and constraint Jacobian against central differences,
 and the fallback where a contact switch makes a step's linearization unreliable."""
-import dataclasses
-
 import mujoco
 import numpy as np
 import pytest
 
-from cito_ros.problem import ProblemSettings, PushProblem, PushTask
+from cito_ros.builder import PushRequest, build_problem
+from cito_ros.derivatives import adjoint
+from cito_ros.problem import PushProblem
+from cito_ros.task import PushTask
 
 
-def make_problem(simulators, start_states, parameters, name, beta=7, **settings):
-    simulator = simulators[name]
-    state = start_states[beta]
-    scene = simulator.scene
-    start = state[1 + scene.object_qpos_adr:1 + scene.object_qpos_adr + 3]
-    base = ProblemSettings.from_parameters(parameters, name)
-    return PushProblem(simulator, state, PushTask(start + [0.25, 0.0, 0.0], 0.1), dataclasses.replace(base, **settings))
+def make_problem(settings, name, beta=7, **overrides):
+    """The default push from q0(beta) with a 0.1 rad yaw goal, under settings with dotted overrides."""
+    settings = settings.with_overrides(overrides)
+    x, y = settings.scene.object.position_m
+    return build_problem(settings, PushRequest(name, beta, target_position_m=[x + 0.25, y],
+                                               target_yaw_rad=0.1)).problem
 
 
 def interior_point(problem, seed=0, spread=0.05):
@@ -33,8 +33,8 @@ def directional_difference(problem, z, direction, h):
 
 
 @pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
-def test_gradient_matches_central_differences(simulators, start_states, parameters, name):
-    problem = make_problem(simulators, start_states, parameters, name)
+def test_gradient_matches_central_differences(settings, name):
+    problem = make_problem(settings, name)
     z = interior_point(problem)
     evaluation = problem.derivatives(z)
     gradient, jacobian = evaluation.gradient.copy(), evaluation.jacobian.copy()
@@ -50,8 +50,8 @@ def test_gradient_matches_central_differences(simulators, start_states, paramete
                                        atol=1e-3 * np.abs(constraints_fd).max())
 
 
-def test_gradient_coordinates(simulators, start_states, parameters):
-    problem = make_problem(simulators, start_states, parameters, "vscm")
+def test_gradient_coordinates(settings):
+    problem = make_problem(settings, "vscm")
     z = interior_point(problem, seed=3)
     gradient = problem.derivatives(z).gradient.copy()
     # every torque of the first, a middle and the last knot, and their stiffnesses
@@ -63,10 +63,10 @@ def test_gradient_coordinates(simulators, start_states, parameters):
         assert gradient[column] == pytest.approx(fd, rel=5e-3, abs=1e-4 * np.abs(gradient).max()), column
 
 
-def test_forward_difference_method_agrees_with_the_adjoint(simulators, start_states, parameters):
-    adjoint = make_problem(simulators, start_states, parameters, "cccm")
-    restart = make_problem(simulators, start_states, parameters, "cccm", gradient_method="forward_differences",
-                           restart_step=1e-6)
+def test_forward_difference_method_agrees_with_the_adjoint(settings):
+    adjoint = make_problem(settings, "cccm")
+    restart = make_problem(settings, "cccm", **{"gradient.method": "forward_differences",
+                                                "gradient.restart_step": 1e-6})
     z = interior_point(adjoint, seed=5)
     a, b = adjoint.derivatives(z), restart.derivatives(z)
     scale = np.abs(a.gradient * adjoint.scale).max()
@@ -75,7 +75,7 @@ def test_forward_difference_method_agrees_with_the_adjoint(simulators, start_sta
                                atol=2e-3 * np.abs(a.jacobian * adjoint.scale).max())
 
 
-def test_contact_switch_is_detected_and_the_knot_falls_back(simulators, parameters):
+def test_contact_switch_is_detected_and_the_knot_falls_back(simulators, settings):
     """A cube placed exactly on the table (zero penetration) sits on a contact switch: every
     small tilt makes or breaks a table contact. The linearization must flag it and the affected
     knot must be differentiated by restart differences instead."""
@@ -84,31 +84,60 @@ def test_contact_switch_is_detected_and_the_knot_falls_back(simulators, paramete
     data = scene.data_at(np.array([-np.pi / 12, -np.pi / 7, 0, 3 * np.pi / 7, -np.pi / 6, -2 * np.pi / 7, 0]))
     state = np.empty(simulator.nstate)
     mujoco.mj_getState(scene.model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    start = state[1 + scene.object_qpos_adr:1 + scene.object_qpos_adr + 3]
-    settings = ProblemSettings.from_parameters(parameters, "vscm")
-    problem = PushProblem(simulator, state, PushTask(start + [0.25, 0, 0]), settings)
+    task = PushTask(scene.object_qpos(state)[:3] + [0.25, 0, 0])
+
+    def problem_with(derivative_settings):
+        return PushProblem(simulator, state, task, settings.weights.vscm, derivative_settings,
+                           settings.task.position_error_scale_min_m)
+
+    problem = problem_with(settings.gradient)
     z = problem.initial_guess
     evaluation = problem.derivatives(z)
     info = evaluation.derivative_info
     assert info["unresolved_columns"] > 0 and info["restarted_knots"] >= 1
     assert np.all(np.isfinite(evaluation.gradient))
-    fallback = PushProblem(simulator, state, PushTask(start + [0.25, 0, 0]),
-                           dataclasses.replace(settings, gradient_method="forward_differences"))
+    fallback = problem_with(settings.with_overrides({"gradient.method": "forward_differences"}).gradient)
     knots = info["restarted_knots"] * problem.width
     np.testing.assert_allclose(evaluation.gradient[:knots], fallback.derivatives(z).gradient[:knots], rtol=1e-12)
 
 
-def test_linearization_is_independent_of_threads(simulators, start_states, parameters):
-    one = make_problem(simulators, start_states, parameters, "vscm", threads=1)
-    two = make_problem(simulators, start_states, parameters, "vscm", threads=2)
+def test_the_adjoint_pass_is_the_derivative_of_a_linear_system():
+    """On x_{t+1} = A_t x_t + B_t u_t, s_t = C_t x_t + D_t u_t and y = sum_t w_t . s_t + g . x_T, with
+    u held per knot, the pure adjoint pass gives dy/du_knot exactly (checked against the explicit sum)."""
+    rng = np.random.default_rng(0)
+    T, S, nx, nu, ns, n_out = 12, 3, 4, 2, 3, 2
+    A, B = rng.normal(size=(T, nx, nx)) * 0.5, rng.normal(size=(T, nx, nu))
+    C, D = rng.normal(size=(T, ns, nx)), rng.normal(size=(T, ns, nu))
+    w, g = rng.normal(size=(T, ns, n_out)), rng.normal(size=(nx, n_out))
+
+    def outputs(knot_u):
+        x, y = np.zeros(nx), np.zeros(n_out)
+        for t in range(T):
+            u = knot_u[t // S]
+            y += (C[t] @ x + D[t] @ u) @ w[t]
+            x = A[t] @ x + B[t] @ u
+        return y + x @ g
+
+    expected = np.zeros((T // S, nu, n_out))
+    for knot in range(T // S):
+        for j in range(nu):
+            u = np.zeros((T // S, nu))
+            u[knot, j] = 1.0
+            expected[knot, j] = outputs(u)  # the map is linear: its value at a unit input is the derivative
+    np.testing.assert_allclose(adjoint(A, B, C, D, w, g, S), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_linearization_is_independent_of_threads(settings):
+    one = make_problem(settings, "vscm", **{"gradient.threads": 1})
+    two = make_problem(settings, "vscm", **{"gradient.threads": 2})
     z = interior_point(one, seed=7)
-    first, second = one._linearize(one.evaluate(z)), two._linearize(two.evaluate(z))
-    for a, b in zip(first, second):
-        assert np.array_equal(a, b)
+    first, second = one.linearize(z), two.linearize(z)
+    for name in ("A", "B", "C", "D", "flags"):
+        assert np.array_equal(getattr(first, name), getattr(second, name)), name
 
 
-def test_bad_gradient_settings(parameters):
-    with pytest.raises(ValueError, match="gradient method must be one of"):
-        ProblemSettings(weights={"w1": 1, "w2": 1, "w3": 1, "w4": 1}, gradient_method="magic")
-    with pytest.raises(ValueError, match=r"missing cost weights \['w4'\]"):
-        ProblemSettings(weights={"w1": 1, "w2": 1, "w3": 1})
+def test_bad_gradient_settings(settings):
+    with pytest.raises(ValueError, match=r"gradient.method must be one of \['adjoint', 'forward_differences'\]"):
+        settings.with_overrides({"gradient.method": "magic"})
+    with pytest.raises(ValueError, match=r"weights.scm.w4: missing"):
+        settings.with_overrides({"weights.scm.w4": None})

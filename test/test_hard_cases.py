@@ -5,13 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from cito_ros.cases import load_cases, result_is_finite, run_case
-from cito_ros.config import SceneConfig
-from cito_ros.contact_models import contact_model
-from cito_ros.planner import Status, evaluate_plan
-from cito_ros.problem import ProblemSettings, PushProblem, PushTask
-from cito_ros.scene import Scene, start_configuration
-from cito_ros.simulator import Simulator
+from cito_ros.builder import PushRequest, build_problem
+from cito_ros.cases import load_cases, run_case
+from cito_ros.planner import evaluate_plan
+from cito_ros.results import Status
 
 CASES = load_cases()
 STATUSES = {s.value for s in Status} | {"invalid_request"}
@@ -24,7 +21,7 @@ def check_record(record, result):
     assert record["status"] in STATUSES
     assert record["finite"]
     if result is not None:
-        assert result_is_finite(result)
+        assert result.finite()
         for key in ("position_error_m", "replay_position_error_m", "solve_time_s", "physical_inaccuracy_Ns"):
             assert math.isfinite(record[key]), key
         if record["warnings"]:
@@ -35,8 +32,8 @@ def test_the_configured_cases_are_the_issue_list():
     assert set(CASES) == EXPECTED
 
 
-def test_far_starts_are_0_4_and_0_5_m_away():
-    scene = Scene(contact_model("vscm"))
+def test_far_starts_are_0_4_and_0_5_m_away(scenes):
+    scene = scenes["vscm"]
     assert scene.initial_distance(CASES["far_0.40m"].beta) == pytest.approx(0.40, abs=0.01)
     assert scene.initial_distance(CASES["far_0.50m"].beta) == pytest.approx(0.50, abs=0.01)
 
@@ -66,19 +63,15 @@ def test_a_case_run_twice_gives_identical_results(name):
     assert first["position_error_m"] == second["position_error_m"] and first["status"] == second["status"]
 
 
-def test_mujoco_warnings_are_reported_as_a_status(tmp_path, parameters):
+def test_mujoco_warnings_are_reported_as_a_status(tmp_path, settings):
     """A 1 ug cube hit by 100 N accelerates past MuJoCo's limit (1e10): the rollout reports the
     warning and a plan with it gets the numerical_error status, not garbage."""
     path = tmp_path / "feather.yaml"
     path.write_text("object: {half_size_m: 0.075, mass_kg: 1.0e-9, position_m: [0.99, 0.0], friction: 0.5}\n")
-    model = contact_model("cccm", parameters)
-    scene = Scene(model, SceneConfig.load(path))
-    simulator = Simulator(scene)
-    state = scene.initial_state(start_configuration(7))
-    trajectory = simulator.rollout(state, np.zeros((20, 7)), np.full(20, 100.0))
+    posed = build_problem(settings, PushRequest("cccm", 7, target_position_m=[1.24, 0.0], scene=str(path)))
+    problem = posed.problem
+    trajectory = posed.simulator.rollout(posed.initial_state, np.zeros((20, 7)), np.full(20, 100.0))
     assert "mjWARN_BADQACC" in trajectory.warnings
-    problem = PushProblem(simulator, state, PushTask(np.array([1.24, 0.0, 0.1])),
-                          ProblemSettings.from_parameters(parameters, "cccm"))
     z = problem.initial_guess.copy().reshape(20, 9)
     z[:, 7] = 100.0
     result = evaluate_plan(problem, z.ravel(), Status.CONVERGED, 0.0, [], beta=7.0, initial_distance_m=0.11,

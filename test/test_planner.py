@@ -1,19 +1,18 @@
 """Planning: task success, constraints and bounds at the solution, cancellation, statuses,
 determinism and bad options. Real MuJoCo and real IPOPT."""
-import copy
-import dataclasses
 import threading
 
 import numpy as np
 import pytest
 
-from cito_ros.planner import IterationLog, SolverOptions, Status, plan_push
+from cito_ros.planner import plan_push
+from cito_ros.results import IterationLog, Status
 
 
 @pytest.fixture(scope="module")
-def solved(parameters):
+def solved(settings):
     """One plan per contact model on the paper's easiest case (beta = 7)."""
-    return {name: plan_push(name, 7, parameters=parameters) for name in ("cccm", "scm", "vscm")}
+    return {name: plan_push(name, 7, settings=settings) for name in ("cccm", "scm", "vscm")}
 
 
 @pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
@@ -25,9 +24,9 @@ def test_each_model_succeeds_on_beta_7(solved, name):
     assert result.status is not Status.NUMERICAL_ERROR
 
 
-def test_cccm_constraints_hold_at_the_solution(solved, parameters):
+def test_cccm_constraints_hold_at_the_solution(solved, settings):
     result = solved["cccm"]
-    tolerance = parameters["solver"]["ipopt"]["constr_viol_tol"]
+    tolerance = settings.solver.ipopt_options["constr_viol_tol"]
     phi = result.trajectory.signed_distance_m.reshape(20, 10).mean(axis=1)
     gamma, slack = result.knot_variables["gamma_N"], result.knot_variables["slack_Nm"]
     assert np.all(phi >= -tolerance)
@@ -66,7 +65,7 @@ def test_result_metrics_are_consistent(solved):
     assert m.iterations == result.iteration_log[-1].iteration
 
 
-def test_iteration_callback_and_cancellation(parameters):
+def test_iteration_callback_and_cancellation(settings):
     cancel = threading.Event()
     seen: list[IterationLog] = []
 
@@ -76,79 +75,56 @@ def test_iteration_callback_and_cancellation(parameters):
             threading.Thread(target=cancel.set).start()
             threading.Event().wait(0.05)  # let the other thread set it
 
-    result = plan_push("vscm", 6, parameters=parameters, iteration_callback=callback, cancel=cancel)
+    result = plan_push("vscm", 6, settings=settings, iteration_callback=callback, cancel=cancel)
     assert result.status is Status.CANCELLED
     assert len(seen) == 4  # stopped at the first iteration boundary after the cancel
     assert all(isinstance(e.cost, float) and e.elapsed_s >= 0 for e in seen)
     assert result.trajectory.finite  # the best iterate so far is returned, simulated
 
 
-def test_iteration_limit(parameters):
-    result = plan_push("scm", 7, parameters=parameters, options=dataclasses.replace(
-        SolverOptions.from_parameters(parameters), max_iter=2))
+def test_iteration_limit(settings):
+    result = plan_push("scm", 7, settings=settings.with_overrides({"solver.max_iter": 2}))
     assert result.status is Status.ITERATION_LIMIT and result.metrics.iterations <= 2
 
 
-def test_time_limit(parameters):
-    result = plan_push("cccm", 7, parameters=parameters, options=dataclasses.replace(
-        SolverOptions.from_parameters(parameters), time_limit_s=1e-3))
+def test_time_limit(settings):
+    result = plan_push("cccm", 7, settings=settings.with_overrides({"solver.time_limit_s": 1e-3}))
     assert result.status is Status.TIME_LIMIT and result.trajectory.finite
 
 
-def test_same_case_twice_gives_identical_plans(parameters):
-    first, second = (plan_push("scm", 7, parameters=parameters) for _ in range(2))
+def test_same_case_twice_gives_identical_plans(settings):
+    first, second = (plan_push("scm", 7, settings=settings) for _ in range(2))
     assert np.array_equal(first.knot_torques_Nm, second.knot_torques_Nm)
     assert first.metrics.position_error_m == second.metrics.position_error_m
 
 
 class TestBadOptions:
-    def test_unknown_contact_model(self, parameters):
+    def test_unknown_contact_model(self, settings):
         with pytest.raises(ValueError, match="unknown contact model 'rigid'"):
-            plan_push("rigid", 7, parameters=parameters)
+            plan_push("rigid", 7, settings=settings)
 
-    def test_negative_horizon(self, parameters):
-        bad = copy.deepcopy(parameters)
-        bad["horizon_s"] = -1.0
-        with pytest.raises(ValueError, match="horizon_s must be positive"):
-            plan_push("vscm", 7, parameters=bad)
-
-    def test_zero_knots(self, parameters):
-        bad = copy.deepcopy(parameters)
-        bad["control_period_s"] = 2.0  # longer than the 1 s horizon: N = 0
-        with pytest.raises(ValueError, match="whole number of control periods"):
-            plan_push("vscm", 7, parameters=bad)
-
-    def test_nan_target(self, parameters):
+    def test_nan_target(self, settings):
         with pytest.raises(ValueError, match="target position contains NaN or Inf"):
-            plan_push("vscm", 7, parameters=parameters, target_position_m=[np.nan, 0.0])
+            plan_push("vscm", 7, settings=settings, target_position_m=[np.nan, 0.0])
 
-    def test_bad_target_shape(self, parameters):
+    def test_bad_target_shape(self, settings):
         with pytest.raises(ValueError, match=r"must be \(x, y\) or \(x, y, z\)"):
-            plan_push("vscm", 7, parameters=parameters, target_position_m=[1.0, 0.0, 0.1, 0.0])
+            plan_push("vscm", 7, settings=settings, target_position_m=[1.0, 0.0, 0.1, 0.0])
 
-    def test_nan_yaw(self, parameters):
+    def test_nan_yaw(self, settings):
         with pytest.raises(ValueError, match="target yaw must be finite"):
-            plan_push("vscm", 7, parameters=parameters, target_yaw_rad=float("nan"))
-
-    @pytest.mark.parametrize("field, value, message", [
-        ("max_iter", 0, "max_iter must be a positive integer"),
-        ("time_limit_s", -1.0, "time_limit_s must be positive"),
-        ("stall_iterations", 0, "stall_iterations must be a positive integer"),
-    ])
-    def test_bad_solver_options(self, parameters, field, value, message):
-        with pytest.raises(ValueError, match=message):
-            dataclasses.replace(SolverOptions.from_parameters(parameters), **{field: value})
+            plan_push("vscm", 7, settings=settings, target_yaw_rad=float("nan"))
 
 
 class TestUnreachableTargets:
-    def test_off_the_table(self, parameters):
+    def test_off_the_table(self, settings):
         with pytest.raises(ValueError, match=r"target \(1.900, 0.000\) m is off the table"):
-            plan_push("vscm", 7, parameters=parameters, target_position_m=[1.9, 0.0])
+            plan_push("vscm", 7, settings=settings, target_position_m=[1.9, 0.0])
 
-    def test_lifted(self, parameters):
+    def test_lifted(self, settings):
         with pytest.raises(ValueError, match="is not the object's resting height"):
-            plan_push("vscm", 7, parameters=parameters, target_position_m=[1.2, 0.0, 0.5])
+            plan_push("vscm", 7, settings=settings, target_position_m=[1.2, 0.0, 0.5])
 
-    def test_beyond_reach(self, parameters):
+    def test_beyond_reach(self, settings):
         with pytest.raises(ValueError, match="beyond the 1.25 m the arm can push"):
-            plan_push("vscm", 7, parameters=parameters, target_position_m=[1.2, 0.5])
+            plan_push("vscm", 7, settings=settings, target_position_m=[1.2, 0.5])

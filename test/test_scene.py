@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cito_ros.config import SceneConfig
+from cito_ros.settings import SceneConfig, load_settings
 from cito_ros.contact_models import contact_model
 from cito_ros.scene import Scene, start_configuration
 
@@ -55,7 +55,7 @@ def test_simulator_settings_live_in_the_model(scenes):
 def test_scene_config_is_applied(tmp_path):
     path = tmp_path / "heavy.yaml"
     path.write_text("object: {half_size_m: 0.05, mass_kg: 2.0, position_m: [1.0, 0.1], friction: 1.2}\n")
-    scene = Scene(contact_model("vscm"), SceneConfig.load(path))
+    scene = Scene(contact_model("vscm", load_settings().contact_models), SceneConfig.load(path))
     data = scene.data_at(start_configuration(5))
     position, _ = scene.object_pose(data)
     np.testing.assert_allclose(position, [1.0, 0.1, 0.075])
@@ -81,7 +81,7 @@ def test_bad_scene_values_are_rejected():
 def test_a_scene_can_name_its_collision_pairs(tmp_path):
     path = tmp_path / "plate_only.yaml"
     path.write_text("object: {friction: 0.7}\npairs: [[plate, object_geom], [object_geom, table]]\n")
-    scene = Scene(contact_model("vscm"), SceneConfig.load(path))
+    scene = Scene(contact_model("vscm", load_settings().contact_models), SceneConfig.load(path))
     model = scene.model
     assert model.npair == 2
     assert {frozenset((model.geom(int(a)).name, model.geom(int(b)).name))
@@ -94,13 +94,13 @@ def test_bad_collision_pairs_are_rejected(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_text("pairs: [[plate, nothing]]\n")
     with pytest.raises(ValueError, match="no geom named 'nothing'"):
-        Scene(contact_model("vscm"), SceneConfig.load(path))
+        Scene(contact_model("vscm", load_settings().contact_models), SceneConfig.load(path))
     with pytest.raises(ValueError, match="pairs must be a list of"):
         SceneConfig.from_mapping("x", {"pairs": [["plate"]]})
 
 
 def test_all_collisions_scene_puts_every_geom_in_the_broad_phase():
-    scene = Scene(contact_model("vscm"), "all_collisions")
+    scene = Scene(contact_model("vscm", load_settings().contact_models), "all_collisions")
     model = scene.model
     assert model.npair == 0 and np.all(model.geom_contype == 1) and np.all(model.geom_conaffinity == 1)
     assert model.geom_priority[scene.object_geom_id] == 1

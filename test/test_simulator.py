@@ -87,10 +87,10 @@ def test_one_and_two_threads_give_identical_results(scenes, start_states):
     assert np.array_equal(single.q[1:], states_2[4][:, 1 + scene.arm_qpos_adr])
 
 
-def test_models_with_different_parameters_coexist(parameters, start_states):
-    soft = dict(parameters)
-    soft["contact_models"] = {**parameters["contact_models"], "vscm": {"stiffness_max": 100.0, "stiffness_initial": 100.0, "curvature": 1000.0}}
-    stiff_scene, soft_scene = Scene(contact_model("vscm", parameters)), Scene(contact_model("vscm", soft))
+def test_models_with_different_parameters_coexist(settings, start_states):
+    soft = settings.with_overrides({"contact_models.vscm.curvature": 1000.0})
+    stiff_scene = Scene(contact_model("vscm", settings.contact_models))
+    soft_scene = Scene(contact_model("vscm", soft.contact_models))
     stiff, soft_sim = Simulator(stiff_scene), Simulator(soft_scene)
     for _ in range(2):  # interleaved: neither scene's parameters leak into the other
         for simulator in (stiff, soft_sim):
@@ -152,7 +152,7 @@ class TestBadInput:
 
     def test_unknown_contact_model(self):
         with pytest.raises(ValueError, match=r"unknown contact model 'soft'; choose one of \['cccm', 'scm', 'vscm'\]"):
-            contact_model("soft")
+            contact_model("soft", None)
 
     @pytest.mark.parametrize("horizon, period, message", [
         (-1.0, 0.05, "horizon_s must be positive"),
@@ -165,9 +165,8 @@ class TestBadInput:
         with pytest.raises(ValueError, match=message):
             Simulator(scenes["vscm"], horizon, period)
 
-    def test_bad_contact_model_parameters(self, parameters):
-        bad = {"contact_models": {"scm": {"stiffness": 100.0, "curvature": -5.0}}}
-        with pytest.raises(ValueError, match="scm: curvature must be positive"):
-            contact_model("scm", bad)
-        with pytest.raises(ValueError, match="contact_models.scm"):
-            contact_model("scm", {"contact_models": {"scm": {"stiffness": 100.0}}})
+    def test_bad_contact_model_parameters(self, settings):
+        with pytest.raises(ValueError, match="contact_models.scm.curvature must be positive, got -5.0"):
+            settings.with_overrides({"contact_models.scm.curvature": -5.0})
+        with pytest.raises(ValueError, match="contact_models.scm.curvature: missing"):
+            settings.with_overrides({"contact_models.scm.curvature": None})

@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 from cito_ros.cli.progress import ProgressBar
-from cito_ros.config import SceneConfig, load_parameters
 from cito_ros.contact_models import CONTACT_MODELS
 from cito_ros.scene import TABLE_TOP_Z_M
+from cito_ros.settings import load_settings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,13 +50,12 @@ def _call(args) -> int:
     from cito_msgs.msg import SolverProgress
     from cito_msgs.srv import PlanPush
 
-    parameters = load_parameters()
-    scene = SceneConfig.load(parameters["scene"])
-    x, y = scene.object.position_m
+    settings = load_settings()
+    x, y = settings.scene.object.position_m
     request = PlanPush.Request()
-    request.target_pose.position.x = x + float(parameters["task"]["push_distance_m"])
+    request.target_pose.position.x = x + settings.task.push_distance_m
     request.target_pose.position.y = y
-    request.target_pose.position.z = TABLE_TOP_Z_M + scene.object.half_size_m
+    request.target_pose.position.z = TABLE_TOP_Z_M + settings.scene.object.half_size_m
     request.target_pose.orientation.w = 1.0
     request.contact_model = args.contact_model
 
@@ -78,13 +77,14 @@ def _call(args) -> int:
             print(f"cito-demo: no answer within {args.timeout} s", file=sys.stderr)
             return 1
         r = future.result()
-        print(f"plan-push ({args.contact_model}, beta {parameters['beta']:g}): status {r.status} "
+        m = r.metrics
+        print(f"plan-push ({args.contact_model}, beta {settings.beta:g}): status {r.status} "
               f"({'SUCCESS' if r.success else 'no success'}) {r.message}")
-        print(f"  position error     {100 * r.position_error_m:8.2f} cm")
-        print(f"  orientation error  {r.orientation_error_rad:8.4f} rad")
-        print(f"  physical inacc.    {r.physical_inaccuracy_ns:8.4f} N s")
-        print(f"  replay error       {100 * r.replay_position_error_m:8.2f} cm (virtual force off)")
-        print(f"  solve time         {r.solve_time_s:8.2f} s ({r.iterations} iterations; "
+        print(f"  position error     {100 * m.position_error_m:8.2f} cm")
+        print(f"  orientation error  {m.orientation_error_rad:8.4f} rad")
+        print(f"  physical inacc.    {m.physical_inaccuracy_ns:8.4f} N s")
+        print(f"  replay error       {100 * m.replay_position_error_m:8.2f} cm (virtual force off)")
+        print(f"  solve time         {m.solve_time_s:8.2f} s ({m.iterations} iterations; "
               f"round trip {time.monotonic() - started:.2f} s)")
         print(f"  trajectory         {len(r.trajectory.points)} points, {len(r.contact_forces)} contact samples")
         print(f"  bag                {r.bag_path}")

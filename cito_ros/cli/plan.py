@@ -6,14 +6,14 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 
 from cito_ros.cli.progress import ProgressBar
-from cito_ros.config import load_parameters
 from cito_ros.contact_models import CONTACT_MODELS
-from cito_ros.planner import IterationLog, PlanResult, SolverOptions, plan_push
+from cito_ros.planner import plan_push
+from cito_ros.results import IterationLog, PlanResult
+from cito_ros.settings import load_settings
 
 
 def print_summary(result: PlanResult) -> None:
@@ -21,7 +21,7 @@ def print_summary(result: PlanResult) -> None:
     target = ", ".join(f"{v:.3f}" for v in result.target_position_m[:2])
     final = ", ".join(f"{v:.3f}" for v in result.trajectory.object_position_m[-1][:2])
     print(f"contact model      {result.contact_model} (beta = {result.beta}, initial distance {result.initial_distance_m:.3f} m)")
-    print(f"status             {m.status}, {'SUCCESS' if m.success else 'task not achieved'} "
+    print(f"status             {m.status.value}, {'SUCCESS' if m.success else 'task not achieved'} "
           f"({m.iterations} iterations, {m.solve_time_s:.2f} s)")
     print(f"object             ({final}) m, target ({target}) m, yaw {result.target_yaw_rad:.3f} rad")
     print(f"position error     {m.position_error_m * 100:7.2f} cm")
@@ -45,14 +45,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     try:
-        parameters = load_parameters()
-        options = SolverOptions.from_parameters(parameters)
         overrides = {}
         if args.max_iter is not None:
-            overrides["max_iter"] = args.max_iter
+            overrides["solver.max_iter"] = args.max_iter
         if args.time_limit is not None:
-            overrides["time_limit_s"] = args.time_limit
-        options = dataclasses.replace(options, **overrides)
+            overrides["solver.time_limit_s"] = args.time_limit
+        settings = load_settings().with_overrides(overrides)
         bar = None if args.json else ProgressBar(None, "solving, iteration")
 
         def progress(entry: IterationLog) -> None:
@@ -62,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         target = None if args.target is None else args.target[:2]
         yaw = 0.0 if args.target is None else args.target[2]
         result = plan_push(args.contact_model or "vscm", args.beta, target_position_m=target, target_yaw_rad=yaw,
-                           options=options, parameters=parameters, iteration_callback=progress)
+                           settings=settings, iteration_callback=progress)
         if bar is not None:
             bar.close()
     except ValueError as error:

@@ -8,14 +8,14 @@ import argparse
 import json
 import sys
 
-from cito_ros.config import SceneConfig, load_parameters
 from cito_ros.contact_models import contact_model
 from cito_ros.scene import ARM_JOINTS, Scene, start_configuration
+from cito_ros.settings import SceneConfig, Settings, load_settings
 
 
-def scene_info(beta: float, scene_name: str) -> dict:
-    parameters = load_parameters()
-    scene = Scene(contact_model("vscm", parameters), SceneConfig.load(scene_name))
+def scene_info(settings: Settings, beta: float, scene_name: str | None) -> dict:
+    scene = Scene(contact_model("vscm", settings.contact_models),
+                  settings.scene if scene_name is None else SceneConfig.load(scene_name))
     q0 = start_configuration(beta)
     data = scene.data_at(q0)
     position, quaternion = scene.object_pose(data)
@@ -47,9 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     info.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     try:
-        parameters = load_parameters()
-        beta = args.beta if args.beta is not None else float(parameters["beta"])
-        result = scene_info(beta, args.scene or parameters["scene"])
+        settings = load_settings()
+        beta = args.beta if args.beta is not None else settings.beta
+        result = scene_info(settings, beta, args.scene)
     except ValueError as error:
         print(f"cito-scene: error: {error}", file=sys.stderr)
         return 2

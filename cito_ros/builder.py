@@ -1,0 +1,100 @@
+"""The one way to pose a push problem: settings + request -> scene, simulator, start, task, problem.
+
+ROS-free. `plan_push`, the benchmarks, the studies and the tests all call
+`build_problem`; the task checks (the target on the table, at the object's
+resting height, within the arm's reach) live here and nowhere else.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cito_ros.contact_models import contact_model
+from cito_ros.problem import PushProblem
+from cito_ros.scene import Scene, start_configuration
+from cito_ros.settings import SceneConfig, Settings
+from cito_ros.simulator import Simulator
+from cito_ros.task import PushTask
+
+
+@dataclass(frozen=True)
+class PushRequest:
+    """What to plan. Unset fields take the settings' values.
+
+    contact_model: 'cccm', 'scm' or 'vscm'.
+    beta: start pose q0(beta); ignored when start_q is given.
+    start_q: (7,) start configuration of the arm (at rest), instead of q0(beta).
+    target_position_m: (x, y) or (x, y, z) of the object's goal, world frame; default
+      task.push_distance_m along +x from the object's start (z: the object's resting height).
+    target_yaw_rad: goal yaw of the object about world z.
+    scene: a scene name in config/scenes (or a scene YAML path).
+    """
+
+    contact_model: str = "vscm"
+    beta: float | None = None
+    start_q: np.ndarray | None = None
+    target_position_m: np.ndarray | None = None
+    target_yaw_rad: float = 0.0
+    scene: str | None = None
+
+
+@dataclass(frozen=True)
+class PlanningProblem:
+    """A posed problem and what it was built from."""
+
+    scene: Scene
+    simulator: Simulator
+    initial_state: np.ndarray
+    task: PushTask
+    problem: PushProblem
+    beta: float | None          # None when the request gave start_q
+    initial_distance_m: float   # signed distance between the contact candidates at the start
+
+
+def build_problem(settings: Settings, request: PushRequest) -> PlanningProblem:
+    """Pose `request` under `settings`. Raises ValueError for anything that cannot be planned."""
+    model = contact_model(request.contact_model, settings.contact_models)
+    scene = Scene(model, settings.scene if request.scene is None else SceneConfig.load(request.scene))
+    simulator = Simulator(scene, settings.horizon_s, settings.control_period_s, nthread=settings.gradient.threads)
+    if request.start_q is None:
+        beta = settings.beta if request.beta is None else request.beta
+        start_q = start_configuration(beta)
+    else:
+        beta, start_q = None, request.start_q
+    initial_state = scene.initial_state(start_q)
+    task = make_task(scene, initial_state, request.target_position_m, request.target_yaw_rad, settings)
+    problem = PushProblem(simulator, initial_state, task, getattr(settings.weights, model.name), settings.gradient,
+                          settings.task.position_error_scale_min_m)
+    return PlanningProblem(scene, simulator, initial_state, task, problem, beta,
+                           scene.signed_distance(scene.data_at(start_q)))
+
+
+def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target_yaw_rad: float,
+              settings: Settings) -> PushTask:
+    """The push target, checked against what pushing on this table can reach."""
+    start = scene.object_qpos(initial_state)[:3]
+    if target_position_m is None:
+        target = start + np.array([settings.task.push_distance_m, 0.0, 0.0])
+    else:
+        target = np.asarray(target_position_m, dtype=float)
+        if target.shape == (2,):
+            target = np.array([target[0], target[1], start[2]])
+        if target.shape != (3,):
+            raise ValueError(f"target position must be (x, y) or (x, y, z), got shape {target.shape}")
+    task = PushTask(target, target_yaw_rad)
+    low, high, _ = scene.table_top()
+    half = float(scene.object_half_size[0])
+    if np.any(task.target_position_m[:2] < low + half) or np.any(task.target_position_m[:2] > high - half):
+        raise ValueError(f"target ({task.target_position_m[0]:.3f}, {task.target_position_m[1]:.3f}) m is off the "
+                         f"table: the object must end within x [{low[0] + half:.3f}, {high[0] - half:.3f}], "
+                         f"y [{low[1] + half:.3f}, {high[1] - half:.3f}] m")
+    height_tolerance = settings.task.target_height_tolerance_m
+    if abs(task.target_position_m[2] - start[2]) > height_tolerance:
+        raise ValueError(f"target z {task.target_position_m[2]:.3f} m is not the object's resting height "
+                         f"{start[2]:.3f} m (+-{height_tolerance} m): pushing cannot lift it")
+    reach = settings.task.max_reach_m
+    if np.linalg.norm(task.target_position_m[:2]) > reach:
+        raise ValueError(f"target is {np.linalg.norm(task.target_position_m[:2]):.3f} m from the arm base, beyond "
+                         f"the {reach} m the arm can push the object to")
+    return task

@@ -1,0 +1,134 @@
+"""What a solve returns: the status enum, the per-iteration log, the metrics and the plan.
+
+ROS-free. `Metrics` is the one declaration of the metric fields: the JSON
+summary, the CSV and Markdown writers and the ROS message conversion (the
+`cito_msgs/PlanMetrics` message has the same fields, lower-cased) all iterate
+over it, so a new metric is one field here and one line in PlanMetrics.msg.
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cito_ros.simulator import Trajectory
+
+
+class Status(enum.Enum):
+    """How a solve ended."""
+
+    CONVERGED = "converged"              # the solver met its tolerance
+    ACCEPTABLE = "acceptable"            # the solver met its acceptable-level tolerance
+    STALLED = "stalled"                  # the cost stopped improving (stall_iterations, stall_tolerance)
+    ITERATION_LIMIT = "iteration_limit"  # best iterate after max_iter iterations
+    TIME_LIMIT = "time_limit"            # best iterate when the time limit ran out
+    CANCELLED = "cancelled"              # best iterate when cancel was set
+    SOLVER_FAILED = "solver_failed"      # the solver gave up (restoration failure, ...)
+    NUMERICAL_ERROR = "numerical_error"  # NaN/Inf or MuJoCo warnings in the planned motion
+
+    @property
+    def finished(self) -> bool:
+        """Whether the solver stopped on its own convergence test."""
+        return self in (Status.CONVERGED, Status.ACCEPTABLE, Status.STALLED)
+
+    @property
+    def interrupted(self) -> bool:
+        """Whether the solve was stopped from outside (no further stage may run)."""
+        return self in (Status.CANCELLED, Status.TIME_LIMIT)
+
+
+@dataclass(frozen=True)
+class IterationLog:
+    iteration: int
+    cost: float
+    constraint_violation: float
+    elapsed_s: float
+
+
+def metric(description: str) -> Any:
+    return field(metadata={"description": description})
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """The figures of a plan. Every field is a column of every report and a field of PlanMetrics.msg."""
+
+    position_error_m: float = metric("final object position vs target, planned (with the virtual force)")
+    orientation_error_rad: float = metric("norm of the final Euler-angle deviation, planned")
+    physical_inaccuracy_Ns: float = metric("integral of the virtual force, sum of gamma dt (Table I)")
+    replay_position_error_m: float = metric("final position error with the same torques, virtual force off")
+    replay_orientation_error_rad: float = metric("final orientation error, virtual force off")
+    solve_time_s: float = metric("wall clock of the whole solve")
+    iterations: int = metric("solver iterations over all stages")
+    status: Status = metric("how the solve ended")
+    success: bool = metric("position error below task.success_position_error_m (the paper's criterion)")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-serialisable values by field name (the status by its value)."""
+        return {name: value.value if isinstance(value, Status) else value for name, value in self.items()}
+
+    def items(self):
+        return ((f.name, getattr(self, f.name)) for f in dataclasses.fields(self))
+
+
+METRIC_NAMES = tuple(f.name for f in dataclasses.fields(Metrics))
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    contact_model: str
+    beta: float | None
+    initial_distance_m: float
+    target_position_m: np.ndarray
+    target_yaw_rad: float
+    knot_time_s: np.ndarray          # (N+1,) knot boundaries
+    knot_torques_Nm: np.ndarray      # (N, 7) u per knot
+    knot_contact_control: np.ndarray  # (N,) k (SCM/VSCM) or gamma (CCCM) per knot
+    knot_variables: dict[str, np.ndarray]  # the contact model's knot variables by name
+    trajectory: Trajectory           # per simulation step, with the virtual force
+    replay: Trajectory               # per simulation step, virtual force off
+    metrics: Metrics
+    iteration_log: tuple[IterationLog, ...]
+    derivative_info: dict[str, int]
+
+    @property
+    def status(self) -> Status:
+        return self.metrics.status
+
+    @property
+    def knot_q(self) -> np.ndarray:
+        """(N+1, 7) joint positions at the knot boundaries."""
+        steps = (len(self.trajectory.time_s) - 1) // len(self.knot_torques_Nm)
+        return self.trajectory.q[::steps]
+
+    def summary(self) -> dict[str, Any]:
+        """The identifiers and metrics as a JSON-serialisable dict."""
+        return {
+            "contact_model": self.contact_model,
+            "beta": self.beta,
+            "initial_distance_m": self.initial_distance_m,
+            "target_position_m": self.target_position_m.tolist(),
+            "target_yaw_rad": self.target_yaw_rad,
+            **self.metrics.as_dict(),
+            "final_object_position_m": self.trajectory.object_position_m[-1].tolist(),
+            "replay_object_position_m": self.replay.object_position_m[-1].tolist(),
+            "warnings": self.trajectory.warnings,
+            "derivatives": self.derivative_info,
+        }
+
+    def finite(self) -> bool:
+        """No NaN or Inf in any array or metric of the plan."""
+        arrays = [self.knot_torques_Nm, self.knot_contact_control, *self.knot_variables.values()]
+        for trajectory in (self.trajectory, self.replay):
+            arrays += [value for value in vars(trajectory).values() if isinstance(value, np.ndarray)]
+        numbers = [v for _, v in self.metrics.items() if isinstance(v, float)]
+        return all(bool(np.all(np.isfinite(a))) for a in arrays) and bool(np.all(np.isfinite(numbers)))
+
+    def with_totals(self, status: Status, solve_time_s: float, log: list[IterationLog]) -> "PlanResult":
+        """This plan reported with a whole solve's status, time and iteration log."""
+        metrics = dataclasses.replace(self.metrics, status=status, solve_time_s=solve_time_s,
+                                      iterations=log[-1].iteration if log else 0)
+        return dataclasses.replace(self, metrics=metrics, iteration_log=tuple(log))

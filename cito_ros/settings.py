@@ -1,0 +1,322 @@
+"""Every planner setting, read once into typed, frozen, validated dataclasses.
+
+`load_settings()` reads `config/planner.yaml` (the ROS params-file the node
+loads too); `Settings.from_mapping` takes the same tree from anywhere else (the
+node's parameters). Every value comes from that file: the dataclasses have no
+defaults of their own, a missing or unknown parameter is an error, and every
+bad value is reported with its dotted name before anything is solved. Below
+these entry points nothing reads a raw parameter dict.
+
+Each field's metadata carries its description and admissible range, which the
+validation here and the ROS parameter descriptors share.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from cito_ros.paths import config_path
+from cito_ros.typed_config import parse, setting, unparse
+
+PLANNER_FILE = "planner.yaml"
+DEFAULT_SCENE = "default"
+CONTACT_MODEL_NAMES = ("cccm", "scm", "vscm")
+
+
+# ------------------------------------------------------------------------------------- scenes
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    half_size_m: float = setting("cube half edge (m)", positive=True)
+    mass_kg: float = setting("cube mass (kg)", positive=True)
+    position_m: tuple[float, ...] = setting("cube centre x, y (m, world); z follows from the table top")
+    yaw_rad: float = setting("cube yaw about world z (rad)")
+    friction: float = setting("sliding friction of every pair involving the cube", minimum=0.0)
+
+    def check(self, path: str) -> None:
+        if len(self.position_m) != 2:
+            raise ValueError(f"{path}.position_m must be [x, y], got {list(self.position_m)}")
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """A push scene: the model file and what is applied on top of it.
+
+    `config/scenes/default.yaml` gives every field; any other scene file gives only what it
+    changes, applied over the default scene, so every scene default lives in that one file.
+    """
+
+    description: str = setting("what the scene is")
+    model: str = setting("model file in models/")
+    timestep_s: float = setting("simulation timestep (s)", positive=True)
+    object: ObjectConfig = setting("the object to push")
+    collisions: str = setting("minimal: the model's pair list (or `pairs`); all: every geom pair",
+                              choices=("minimal", "all"))
+    pairs: tuple[tuple[str, ...], ...] | None = setting("the collision pairs instead of the model's, as "
+                                                        "[geom, geom] names (collisions: minimal only)")
+    source: str = field(default="", compare=False, metadata={"internal": True})  # the name or path loaded
+
+    def check(self, path: str) -> None:
+        if self.pairs is not None and (self.collisions != "minimal" or any(len(p) != 2 for p in self.pairs)):
+            raise ValueError("pairs must be a list of [geom, geom] names, with collisions: minimal")
+
+    @property
+    def name(self) -> str:
+        return Path(self.source).stem
+
+    @classmethod
+    def load(cls, name_or_path: str | Path = DEFAULT_SCENE) -> "SceneConfig":
+        """Load `config/scenes/<name>.yaml`, or a YAML file given by path."""
+        path = Path(name_or_path)
+        if path.suffix not in (".yaml", ".yml"):
+            path = config_path("scenes") / f"{name_or_path}.yaml"
+        if not path.is_file():
+            raise ValueError(f"unknown scene {str(name_or_path)!r}: {path} does not exist")
+        with open(path, encoding="utf-8") as stream:
+            raw = yaml.safe_load(stream) or {}
+        return cls.from_mapping(path.stem, raw, source=str(name_or_path))
+
+    @classmethod
+    def from_mapping(cls, name: str, raw: Mapping[str, Any], source: str | None = None) -> "SceneConfig":
+        """A scene from its description, applied over the default scene's."""
+        tree = raw
+        if name != DEFAULT_SCENE:
+            with open(config_path("scenes") / f"{DEFAULT_SCENE}.yaml", encoding="utf-8") as stream:
+                tree = _merged(yaml.safe_load(stream), raw)
+        try:
+            scene = parse(cls, tree, "")
+        except ValueError as error:
+            raise ValueError(f"scene {name}: {error}") from None
+        return dataclasses.replace(scene, source=name if source is None else source)
+
+
+def _merged(base: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+    tree = dict(base)
+    for key, value in changes.items():
+        tree[key] = _merged(base[key], value) if isinstance(value, Mapping) and isinstance(base.get(key), Mapping) \
+            else value
+    return tree
+
+
+def _options(value: Any, name: str) -> tuple[tuple[str, Any], ...]:
+    if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
+        raise ValueError(f"{name} must be a section of option names and values, got {value!r}")
+    return tuple(value.items())
+
+
+def _scene(value: Any, name: str) -> SceneConfig:
+    if isinstance(value, SceneConfig):
+        return value
+    if not isinstance(value, str) or not value:
+        raise ValueError(f"{name} must be a scene name in config/scenes, got {value!r}")
+    return SceneConfig.load(value)
+
+
+# ---------------------------------------------------------------------------------- planner
+
+@dataclass(frozen=True)
+class NodeSettings:
+    default_contact_model: str = setting("contact model for requests with an empty contact_model",
+                                         choices=CONTACT_MODEL_NAMES)
+    bag_directory: str = setting("one rosbag2 (MCAP) bag per plan; relative to the working directory")
+    frame_id: str = setting("frame of every stamped message")
+
+
+@dataclass(frozen=True)
+class ScmSettings:
+    stiffness: float = setting("k (N), fixed", positive=True)
+    curvature: float = setting("c (N/m); alpha = c / k", positive=True)
+
+
+@dataclass(frozen=True)
+class VscmSettings:
+    stiffness_max: float = setting("upper bound of k per knot (N)", positive=True)
+    stiffness_initial: float = setting("k per knot at the optimizer's start (N)", minimum=0.0)
+    curvature: float = setting("c (N/m)", positive=True)
+
+    def check(self, path: str) -> None:
+        if self.stiffness_initial > self.stiffness_max:
+            raise ValueError(f"{path}.stiffness_initial {self.stiffness_initial} exceeds "
+                             f"{path}.stiffness_max {self.stiffness_max}")
+
+
+@dataclass(frozen=True)
+class CccmSettings:
+    force_max: float = setting("upper bound of gamma per knot (N)", positive=True)
+    slack_max: float = setting("upper bound of the complementarity slack s per knot (N m)", positive=True)
+
+
+@dataclass(frozen=True)
+class ContactModelsSettings:
+    cccm: CccmSettings = setting("relaxed complementarity constraints, force per knot")
+    scm: ScmSettings = setting("smooth contact model, gamma = k exp(-(c/k) phi), k fixed")
+    vscm: VscmSettings = setting("variable smooth contact model, k per knot in [0, stiffness_max]")
+
+
+@dataclass(frozen=True)
+class TaskSettings:
+    push_distance_m: float = setting("default target: this far along world +x from the object's start")
+    success_position_error_m: float = setting("success: final position error below this (m)", positive=True)
+    position_error_scale_min_m: float = setting("floor of the position-cost normaliser ||p_0 - p*|| (m)",
+                                                positive=True)
+    target_height_tolerance_m: float = setting("a target's z must be the object's resting height within this (m)",
+                                               positive=True)
+    max_reach_m: float = setting("farthest object centre from the arm base the arm can push to (m)", positive=True)
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Cost weights of eqs. (8)-(10); w5 (the CCCM slack) only where the model has slack."""
+
+    w1: float = setting("final position", minimum=0.0)
+    w2: float = setting("final orientation", minimum=0.0)
+    w3: float = setting("end-effector speed squared", minimum=0.0)
+    w4: float = setting("virtual force squared", minimum=0.0)
+    w5: float | None = setting("complementarity slack squared (CCCM)", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class WeightsSettings:
+    cccm: Weights = setting("CCCM cost weights")
+    scm: Weights = setting("SCM cost weights")
+    vscm: Weights = setting("VSCM cost weights")
+
+    def check(self, path: str) -> None:
+        if self.cccm.w5 is None:
+            raise ValueError(f"{path}.cccm.w5: missing (CCCM's slack weight)")
+
+
+@dataclass(frozen=True)
+class DerivativeSettings:
+    method: str = setting("adjoint (per-step linearization) or forward_differences (knot restarts)",
+                          choices=("adjoint", "forward_differences"))
+    epsilon: float = setting("finite-difference step of the per-step linearization", positive=True)
+    restart_step: float = setting("knot-restart difference step, relative to the variable scale", positive=True)
+    threads: int = setting("linearization threads, one mjData each", minimum=1)
+
+
+@dataclass(frozen=True)
+class Continuation:
+    """Stages after the paper's solve that tighten the upper bound of one knot variable
+    (see cito_ros.stages)."""
+
+    variable: str = setting("the knot variable whose upper bound is tightened")
+    upper_bounds: tuple[float, ...] = setting("its upper bound in each stage", minimum=0.0)
+    trust_region: float = setting("box around the previous stage, times the variable scales", positive=True)
+    retries: int = setting("retries of a rejected stage, each with half the trust region", minimum=0)
+    accept_position_error_m: float = setting("a stage ending farther than this (or than the previous one) "
+                                             "is rejected", positive=True)
+    physical_inaccuracy_goal_Ns: float = setting("stop once the virtual impulse is this small", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class ContinuationSettings:
+    cccm: Continuation | None = setting("CCCM continuation (none when absent)")
+    scm: Continuation | None = setting("SCM continuation (none when absent)")
+    vscm: Continuation | None = setting("VSCM continuation (none when absent)")
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    max_iter: int = setting("IPOPT iterations per stage", minimum=1)
+    time_limit_s: float = setting("wall clock of the whole solve, checked every iteration (s)", positive=True)
+    stall_iterations: int = setting("stop when the best cost improved by less than stall_tolerance over this "
+                                    "many iterations", minimum=1)
+    stall_tolerance: float = setting("relative cost improvement below which the solve has stalled", minimum=0.0)
+    restarts: int = setting("re-solves from the best point when the first ends short of the task", minimum=0)
+    scale_variables: bool = setting("IPOPT sees z / scale (torque limits, k_max, gamma_max, slack_max)")
+    ipopt: tuple[tuple[str, Any], ...] = setting("options passed to IPOPT as they are", convert=_options,
+                                                 unconvert=dict)
+
+    @property
+    def ipopt_options(self) -> dict[str, Any]:
+        return dict(self.ipopt)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The planner's settings (config/planner.yaml, `ros__parameters`)."""
+
+    node: NodeSettings = setting("cito_planner_node only")
+    scene: SceneConfig = setting("scene in config/scenes", convert=_scene, unconvert=lambda scene: scene.source)
+    beta: float = setting("start pose q0(beta) = [-pi/12, -pi/b, 0, 3pi/b, -pi/6, -2pi/b, 0]", positive=True)
+    horizon_s: float = setting("planned horizon (s)", positive=True)
+    control_period_s: float = setting("t_c: one knot per control period (s)", positive=True)
+    contact_models: ContactModelsSettings = setting("contact model parameters")
+    task: TaskSettings = setting("targets and success")
+    weights: WeightsSettings = setting("cost weights per contact model")
+    gradient: DerivativeSettings = setting("derivatives")
+    continuation: ContinuationSettings = setting("stages after the paper's solve, per contact model")
+    solver: SolverSettings = setting("solver")
+
+    def check(self, path: str) -> None:
+        knots = self.horizon_s / self.control_period_s
+        if abs(knots - round(knots)) > 1e-9 or round(knots) < 1:
+            raise ValueError(f"horizon_s {self.horizon_s} must be a positive whole number of control periods "
+                             f"control_period_s {self.control_period_s}")
+        steps = self.control_period_s / self.scene.timestep_s
+        if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+            raise ValueError(f"control_period_s {self.control_period_s} must be a whole number of timesteps "
+                             f"{self.scene.timestep_s} (scene {self.scene.name})")
+        from cito_ros.contact_models import CONTACT_MODELS  # the models name their knot variables
+
+        for name in CONTACT_MODEL_NAMES:
+            stages = getattr(self.continuation, name)
+            variables = CONTACT_MODELS[name].variable_names
+            if stages is not None and stages.variable not in variables:
+                raise ValueError(f"continuation.{name}.variable {stages.variable!r} is not one of {name}'s knot "
+                                 f"variables {list(variables)}")
+
+    @classmethod
+    def from_mapping(cls, parameters: Mapping[str, Any]) -> "Settings":
+        """Settings from the nested `ros__parameters` tree; ValueError naming the first bad value."""
+        return parse(cls, parameters, "")
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The nested parameter tree these settings were read from."""
+        return unparse(self)
+
+    def with_overrides(self, overrides: Mapping[str, Any]) -> "Settings":
+        """A copy with parameters replaced by dotted name ({"solver.max_iter": 10}), validated."""
+        tree = self.to_mapping()
+        for dotted, value in overrides.items():
+            keys = dotted.split(".")
+            node = tree
+            for i, key in enumerate(keys[:-1]):
+                child = node.get(key)
+                if child is None:
+                    child = node[key] = {}
+                if not isinstance(child, dict):
+                    raise ValueError(f"{'.'.join(keys[:i + 1])} is a value, not a section: cannot set {dotted}")
+                node = child
+            if value is None:
+                node.pop(keys[-1], None)
+            else:
+                node[keys[-1]] = value
+        return Settings.from_mapping(tree)
+
+    def contact_model_settings(self, name: str):
+        return getattr(self.contact_models, name)
+
+
+def load_parameters(path: str | Path | None = None) -> dict[str, Any]:
+    """The nested `ros__parameters` mapping of a params file (the node's or the wildcard entry)."""
+    path = Path(path) if path is not None else config_path(PLANNER_FILE)
+    with open(path, encoding="utf-8") as stream:
+        document = yaml.safe_load(stream)
+    if isinstance(document, Mapping):
+        for entry in document.values():
+            if isinstance(entry, Mapping) and isinstance(entry.get("ros__parameters"), Mapping):
+                return dict(entry["ros__parameters"])
+    raise ValueError(f"{path}: no '<node>: ros__parameters:' section found")
+
+
+def load_settings(path: str | Path | None = None) -> Settings:
+    """Settings from a params file (default config/planner.yaml)."""
+    return Settings.from_mapping(load_parameters(path))
+
+

@@ -1,0 +1,97 @@
+"""Settings are read once, typed and validated, with every default in config/planner.yaml and every
+bad value named by its dotted parameter name; the metric fields are declared once."""
+import dataclasses
+import re
+import typing
+from pathlib import Path
+
+import pytest
+
+from cito_ros.paths import share_dir
+from cito_ros.results import METRIC_NAMES
+from cito_ros.settings import Settings, load_parameters, load_settings
+
+
+def settings_classes(cls=Settings, seen=None):
+    seen = set() if seen is None else seen
+    if cls in seen or not dataclasses.is_dataclass(cls):
+        return seen
+    seen.add(cls)
+    for annotation in typing.get_type_hints(cls).values():
+        for candidate in (annotation, *typing.get_args(annotation)):
+            settings_classes(candidate, seen)
+    return seen
+
+
+def settings_module_classes():
+    return {cls.__name__ for cls in settings_classes()}
+
+
+def test_the_config_file_reads_into_frozen_typed_settings(settings):
+    assert isinstance(settings.solver.max_iter, int) and settings.solver.stall_iterations == 5
+    assert settings.scene.name == "default" and settings.continuation.vscm.variable == "stiffness_N"
+    assert settings.continuation.scm is None and settings.weights.cccm.w5 is not None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        settings.solver.max_iter = 3
+
+
+def test_every_default_lives_in_the_config_files_only():
+    assert settings_module_classes() >= {"Settings", "SolverSettings", "SceneConfig", "ObjectConfig", "Weights"}
+    for cls in settings_classes():
+        for field in dataclasses.fields(cls):
+            if field.metadata.get("internal"):
+                continue
+            assert field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING, \
+                f"{cls.__name__}.{field.name} has a default in code"
+            assert field.metadata.get("description"), f"{cls.__name__}.{field.name} has no description"
+
+
+def test_settings_round_trip_through_the_parameter_tree(settings):
+    assert Settings.from_mapping(settings.to_mapping()) == settings
+    assert settings.to_mapping() == load_parameters()
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"solver.max_iter": 0}, "solver.max_iter must be a positive integer, got 0"),
+    ({"solver.max_iter": 2.5}, "solver.max_iter must be an integer, got 2.5"),
+    ({"solver.time_limit_s": -1.0}, "solver.time_limit_s must be positive, got -1.0"),
+    ({"solver.stall_iterations": 0}, "solver.stall_iterations must be a positive integer"),
+    ({"solver.scale_variables": "yes"}, "solver.scale_variables must be true or false"),
+    ({"horizon_s": -1.0}, "horizon_s must be positive"),
+    ({"control_period_s": 2.0}, "whole number of control periods"),
+    ({"control_period_s": 0.0125}, "whole number of timesteps"),
+    ({"beta": float("nan")}, "beta must be finite"),
+    ({"weights.vscm.w3": -0.2}, "weights.vscm.w3 must be non-negative"),
+    ({"weights.cccm.w5": None}, "weights.cccm.w5: missing"),
+    ({"contact_models.vscm.stiffness_initial": 150.0}, "contact_models.vscm.stiffness_initial 150.0 exceeds"),
+    ({"continuation.vscm.variable": "stifness_N"}, "continuation.vscm.variable 'stifness_N' is not one of vscm's"),
+    ({"continuation.vscm.upper_bounds": [80.0, -1.0]}, r"continuation.vscm.upper_bounds\[1\] must be non-negative"),
+    ({"node.default_contact_model": "rigid"}, "node.default_contact_model must be one of"),
+    ({"scene": "moon"}, "unknown scene 'moon'"),
+    ({"solver.maxiter": 10}, r"solver.maxiter: unknown parameter \(solver has"),
+    ({"solver.ipopt": 3}, "solver.ipopt must be a section of option names and values"),
+    ({"task.max_reach_m.x": 1.0}, "task.max_reach_m is a value, not a section"),
+])
+def test_a_bad_value_is_named_before_anything_is_solved(settings, overrides, message):
+    with pytest.raises(ValueError, match=message):
+        settings.with_overrides(overrides)
+
+
+def test_a_params_file_with_a_bad_value_fails_to_load(tmp_path):
+    text = (share_dir() / "config" / "planner.yaml").read_text().replace("max_iter: 100", "max_iter: -4")
+    path = tmp_path / "planner.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match="solver.max_iter must be a positive integer, got -4"):
+        load_settings(path)
+
+
+def test_overrides_give_a_new_validated_copy(settings):
+    changed = settings.with_overrides({"solver.max_iter": 7, "continuation.vscm": None})
+    assert changed.solver.max_iter == 7 and changed.continuation.vscm is None
+    assert settings.solver.max_iter == 100 and settings.continuation.vscm is not None
+
+
+def test_the_metric_fields_are_the_plan_metrics_message():
+    text = (Path(__file__).resolve().parent.parent / "msg_defs" / "msg" / "PlanMetrics.msg").read_text()
+    names = [match.group(1) for match in re.finditer(r"^\s*[\w/]+(?:\[\])?\s+(\w+)", text, re.MULTILINE)]
+    assert names == [name.lower() for name in METRIC_NAMES]
