@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cito_ros.contact_models import contact_model
-from cito_ros.problem import PushProblem
+from cito_ros.problem import PushProblem, StageCost
 from cito_ros.scene import Scene, start_configuration
 from cito_ros.settings import SceneConfig, Settings
 from cito_ros.simulator import Simulator
@@ -56,7 +56,8 @@ def build_problem(settings: Settings, request: PushRequest) -> PlanningProblem:
     """Pose `request` under `settings`. Raises ValueError for anything that cannot be planned."""
     model = contact_model(request.contact_model, settings.contact_models)
     scene = Scene(model, settings.scene if request.scene is None else SceneConfig.load(request.scene))
-    simulator = Simulator(scene, settings.horizon_s, settings.control_period_s, nthread=settings.gradient.threads)
+    horizon_s, control_period_s = settings.horizon
+    simulator = Simulator(scene, horizon_s, control_period_s, nthread=settings.gradient.threads)
     if request.start_q is None:
         beta = settings.beta if request.beta is None else request.beta
         start_q = start_configuration(beta)
@@ -64,8 +65,8 @@ def build_problem(settings: Settings, request: PushRequest) -> PlanningProblem:
         beta, start_q = None, request.start_q
     initial_state = scene.initial_state(start_q)
     task = make_task(scene, initial_state, request.target_position_m, request.target_yaw_rad, settings)
-    problem = PushProblem(simulator, initial_state, task, getattr(settings.weights, model.name), settings.gradient,
-                          settings.task.position_error_scale_min_m)
+    problem = PushProblem(simulator, initial_state, task, StageCost.paper(getattr(settings.weights, model.name)),
+                          settings.gradient, settings.task.position_error_scale_min_m)
     return PlanningProblem(scene, simulator, initial_state, task, problem, beta,
                            scene.signed_distance(scene.data_at(start_q)))
 
@@ -93,8 +94,10 @@ def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target
     if abs(task.target_position_m[2] - start[2]) > height_tolerance:
         raise ValueError(f"target z {task.target_position_m[2]:.3f} m is not the object's resting height "
                          f"{start[2]:.3f} m (+-{height_tolerance} m): pushing cannot lift it")
-    reach = settings.task.max_reach_m
-    if np.linalg.norm(task.target_position_m[:2]) > reach:
-        raise ValueError(f"target is {np.linalg.norm(task.target_position_m[:2]):.3f} m from the arm base, beyond "
-                         f"the {reach} m the arm can push the object to")
+    reach = scene.push_reach_m()
+    distance = float(np.linalg.norm(task.target_position_m[:2]))
+    if distance > reach:
+        raise ValueError(f"target is {distance:.3f} m from the arm base, beyond the {reach:.3f} m the arm can push "
+                         f"the object's centre to (the plate's reach at the object's height, plus the plate's "
+                         f"radius and the object's half size)")
     return task

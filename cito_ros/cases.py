@@ -27,7 +27,7 @@ class Case:
     beta: float | None = 6.0
     start_q: tuple[float, ...] | None = None
     push: tuple[float, float, float] = (0.25, 0.0, 0.0)  # target relative to the cube's start: dx, dy (m), dyaw (rad)
-    control_period_s: float | None = None
+    knots: int | None = None  # N over the pipeline's horizon, instead of the configured control period
 
 
 def load_cases(path: str | Path | None = None) -> dict[str, Case]:
@@ -38,13 +38,13 @@ def load_cases(path: str | Path | None = None) -> dict[str, Case]:
     cases = {}
     for name, spec in document.get("cases", {}).items():
         merged = {**base, **(spec or {})}
-        unknown = set(merged) - {"scene", "beta", "start_q", "push", "control_period_s"}
+        unknown = set(merged) - {"scene", "beta", "start_q", "push", "knots"}
         if unknown:
             raise ValueError(f"{path}: case {name}: unknown keys {sorted(unknown)}")
         cases[name] = Case(name=name, scene=merged.get("scene", "default"), beta=merged.get("beta"),
                            start_q=tuple(merged["start_q"]) if merged.get("start_q") else None,
                            push=tuple(merged.get("push", (0.25, 0.0, 0.0))),
-                           control_period_s=merged.get("control_period_s"))
+                           knots=merged.get("knots"))
     return cases
 
 
@@ -54,8 +54,10 @@ def run_case(case: Case, contact_model: str, settings: Settings | None = None) -
     settings = load_settings() if settings is None else settings
     record: dict[str, Any] = {"case": case.name, "contact_model": contact_model}
     try:
-        if case.control_period_s is not None:
-            settings = settings.with_overrides({"control_period_s": case.control_period_s})
+        if case.knots is not None:
+            horizon_s, _ = settings.horizon
+            key = "paper.control_period_s" if settings.pipeline == "paper" else "control_period_s"
+            settings = settings.with_overrides({key: horizon_s / case.knots})
         scene = SceneConfig.load(case.scene)
         x, y = scene.object.position_m
         result = plan_push(contact_model, case.beta, start_q=None if case.start_q is None else np.array(case.start_q),

@@ -100,9 +100,10 @@ class ContactModel(abc.ABC):
             return np.full(variables.shape[0], self.default_control())
         return variables[:, self.control_variable]
 
-    def variable_cost(self, variables: np.ndarray, weights: Weights) -> tuple[float, np.ndarray]:
-        """Cost terms on the knot variables alone, and their gradient (N, n_var)."""
-        return 0.0, np.zeros_like(variables)
+    def variable_residuals(self, variables: np.ndarray, weights: Weights) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals of the cost terms on the knot variables alone (their squares are the cost), (k,),
+        and their derivatives with respect to the (N, n_var) variables, (k, N, n_var)."""
+        return np.zeros(0), np.zeros((0, *variables.shape))
 
     def knot_constraints(self, mean_signed_distance_m: np.ndarray, variables: np.ndarray) -> KnotConstraints:
         """Constraints per knot (none by default)."""
@@ -226,11 +227,12 @@ class ComplementarityContactModel(ContactModel):
         # A plain MuJoCo force actuator: force = gain * ctrl with gain 1 (the default).
         del spec, actuator
 
-    def variable_cost(self, variables, weights):
-        slack = variables[:, 1]
-        gradient = np.zeros_like(variables)
-        gradient[:, 1] = 2 * weights.w5 * slack
-        return float(weights.w5 * np.sum(slack ** 2)), gradient
+    def variable_residuals(self, variables, weights):
+        root = np.sqrt(weights.w5)
+        n = variables.shape[0]
+        jacobian = np.zeros((n, *variables.shape))
+        jacobian[np.arange(n), np.arange(n), 1] = root
+        return root * variables[:, 1], jacobian
 
     def knot_constraints(self, mean_signed_distance_m, variables):
         phi, gamma, slack = mean_signed_distance_m, variables[:, 0], variables[:, 1]

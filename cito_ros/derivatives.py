@@ -106,3 +106,27 @@ def restart_differences(simulator, states_before: np.ndarray, states: np.ndarray
             if d_vector is not None:
                 d_vector[:, column] = (vector - base_vector) / steps[column]
     return d_value, d_vector
+
+
+def forward_sensitivities(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
+                          steps_per_knot: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sensitivities of the sensors and the final state to every knot's controls.
+
+    With X_t = dx_t/dc and U_t = du_t/dc (knot l's controls held over its steps), the recursion
+    X_{t+1} = A_t X_t + B_t U_t gives dS_t/dc = C_t X_t + D_t U_t for the sensor rows of C and D
+    (T, ns, nx) and (T, ns, nu). Returns dS (T, ns, N nu) and X_T (nx, N nu), columns knot-major.
+    Columns of knots after step t are zero at t (causality), so each step multiplies only the
+    columns of the knots so far.
+    """
+    T, nx, nu = A.shape[0], A.shape[1], B.shape[2]
+    N = T // steps_per_knot
+    X = np.zeros((nx, N * nu))
+    dS = np.zeros((T, C.shape[1], N * nu))
+    for t in range(T):
+        knot = t // steps_per_knot
+        past, own = slice(0, knot * nu), slice(knot * nu, (knot + 1) * nu)
+        dS[t, :, past] = C[t] @ X[:, past]
+        dS[t, :, own] = C[t] @ X[:, own] + D[t]
+        X[:, past] = A[t] @ X[:, past]
+        X[:, own] = A[t] @ X[:, own] + B[t]
+    return dS, X

@@ -114,9 +114,10 @@ def figures(out: Path, progress: Callable[[int, str], None] | None = None) -> li
             axis.set_yticks([])
             axis.set_title(f"{model.upper()}  t = {1000 * t:.0f} ms", fontsize=10)
         m = result.metrics
-        axes[row, 0].set_ylabel(f"{model.upper()}\nerror {100 * m.position_error_m:.1f} cm\n"
-                                f"replay {100 * m.replay_position_error_m:.1f} cm", fontsize=9)
-    figure.suptitle(f"Planned pushes, beta = {SNAPSHOT_BETA:g} (MuJoCo contacts drawn as points and force arrows)")
+        axes[row, 0].set_ylabel(f"{model.upper()}\nexecuted {100 * m.position_error_m:.1f} cm\n"
+                                f"planned {100 * m.planned_position_error_m:.1f} cm", fontsize=9)
+    figure.suptitle(f"Returned plans executed without the virtual force, beta = {SNAPSHOT_BETA:g} "
+                    "(MuJoCo contacts drawn as points and force arrows)")
     figure.tight_layout()
     written.append(out / "snapshots.png")
     figure.savefig(written[-1], dpi=90)
@@ -131,7 +132,7 @@ def figures(out: Path, progress: Callable[[int, str], None] | None = None) -> li
     axis.set_xlabel("time (s)")
     axis.set_ylabel("stiffness k (N)")
     axis.set_ylim(-2, 105)
-    axis.set_title("VSCM stiffness per knot (the returned plan)")
+    axis.set_title("VSCM stiffness per knot (the discovery's plan)")
     axis.legend(fontsize=8)
     figure.tight_layout()
     written.append(out / "vscm_stiffness.png")
@@ -141,16 +142,18 @@ def figures(out: Path, progress: Callable[[int, str], None] | None = None) -> li
     # virtual vs actual contact force
     figure, axes = plt.subplots(3, 1, figsize=(7.5, 7.5), sharex=True)
     for axis, model in zip(axes, ("cccm", "scm", "vscm")):
-        trajectory = plans[model].trajectory
-        t = trajectory.time_s[:-1]
-        axis.plot(t, trajectory.gamma_N, color=COLORS[model], label="virtual force gamma (contact model)")
-        axis.plot(t, np.linalg.norm(trajectory.contact_force_N, axis=1), color="black", linewidth=1,
-                  label="actual robot-object force (MuJoCo)")
+        planned, executed = plans[model].planned, plans[model].trajectory
+        t = planned.time_s[:-1]
+        axis.plot(t, planned.gamma_N, color=COLORS[model], label="virtual force gamma (the contact model's plan)")
+        axis.plot(t, np.linalg.norm(planned.contact_force_N, axis=1), color="gray", linewidth=1,
+                  label="actual robot-object force in that plan")
+        axis.plot(t, np.linalg.norm(executed.contact_force_N, axis=1), color="black", linewidth=1.2,
+                  label="actual robot-object force, returned plan executed")
         axis.set_ylabel(f"{model.upper()} force (N)")
         axis.legend(fontsize=8, loc="upper left")
         axis.grid(alpha=0.3)
     axes[-1].set_xlabel("time (s)")
-    axes[0].set_title(f"virtual vs actual contact force, beta = {SNAPSHOT_BETA:g}")
+    axes[0].set_title(f"virtual force (discovery) vs actual contact force (executed), beta = {SNAPSHOT_BETA:g}")
     figure.tight_layout()
     written.append(out / "contact_forces.png")
     figure.savefig(written[-1], dpi=110)

@@ -90,4 +90,6 @@ class IpoptSolver:
             nlp.add_option(key, value)
         x, info = nlp.solve(np.clip(start, lower, upper) / scale)
         status = callbacks.stop_reason or _IPOPT_STATUS.get(int(info["status"]), Status.SOLVER_FAILED)
-        return monitor.outcome(np.clip(x * scale, lower, upper), status)
+        z = np.clip(x * scale, lower, upper)
+        final = problem.evaluate(z)
+        return monitor.outcome(z, status, final, violation(final, callbacks.lower_bounds, callbacks.upper_bounds))

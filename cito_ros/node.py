@@ -162,7 +162,7 @@ class PlannerNode(Node):
 
             stamp = self.get_clock().now().nanoseconds
             messages = ros_messages.plan_messages(result, request_id, stamp, self.frame_id, str(bag.path),
-                                                  inputs.target_orientation)
+                                                  inputs.target_orientation, settings)
             self._emit(bag, "/cito/joint_trajectory", messages.trajectory, stamp)
             self._emit(bag, "/cito/object_path", messages.object_path, stamp)
             self._emit(bag, "/cito/plan_result", messages.result, stamp)

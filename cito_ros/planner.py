@@ -3,9 +3,10 @@
 ROS-free. `plan_push` is in the style of mujoco.minimize: typed arguments,
 precise ValueErrors, a `Status` enum, an `IterationLog` per iteration to an
 optional callback, and cancellation from another thread through a
-`threading.Event`. It poses the problem (cito_ros.builder), runs the stages
-(cito_ros.stages) with the configured solver, and returns a `PlanResult`
-(cito_ros.results).
+`threading.Event`. It poses the problem (cito_ros.builder), runs the stages of
+the configured pipeline (cito_ros.stages), and returns a `PlanResult`
+(cito_ros.results) whose trajectory is the plan executed without the virtual
+force, as the robot will execute it.
 """
 from __future__ import annotations
 
@@ -15,13 +16,12 @@ from typing import Callable
 
 import numpy as np
 
+from cito_ros import tracking
 from cito_ros.builder import PlanningProblem, PushRequest, build_problem
-from cito_ros.ipopt import IpoptSolver
-from cito_ros.problem import PushProblem
 from cito_ros.results import IterationLog, Metrics, PlanResult, Status
 from cito_ros.settings import Settings, load_settings
 from cito_ros.simulator import Trajectory
-from cito_ros.stages import optimize
+from cito_ros.stages import Outcome, solve_paper, solve_physical
 
 
 def plan_push(
@@ -46,82 +46,90 @@ def plan_push(
       target_yaw_rad: goal yaw of the object about world z.
       start_q: (7,) start configuration of the arm (at rest), instead of q0(beta).
       scene: scene name in config/scenes (default: the settings' scene).
-      settings: planner settings (default: config/planner.yaml).
-      iteration_callback: called with an IterationLog after every solver iteration.
+      settings: planner settings (default: config/planner.yaml); `pipeline` selects the physical
+        pipeline or exactly the paper's problem.
+      iteration_callback: called with an IterationLog after every solver iteration (from the
+        solving threads; calls are serialized).
       cancel: when set (from any thread), the solve stops at the next iteration and
-        returns its best iterate with status CANCELLED.
+        returns its best plan with status CANCELLED.
 
     Raises:
-      ValueError: for an unknown contact model, a bad beta, start configuration or target.
+      ValueError: for an unknown contact model, a bad beta, start configuration, target or scene.
     """
     settings = load_settings() if settings is None else settings
     request = PushRequest(contact_model, beta, start_q, target_position_m, target_yaw_rad, scene)
-    return solve(build_problem(settings, request), settings, iteration_callback=iteration_callback, cancel=cancel)
+    posed = build_problem(settings, request)
+    if settings.pipeline == "paper":
+        outcome = solve_paper(posed, settings, iteration_callback=iteration_callback, cancel=cancel)
+    else:
+        outcome = solve_physical(settings, request, iteration_callback=iteration_callback, cancel=cancel)
+    return evaluate_plan(outcome, posed, settings)
 
 
-def solve(posed: PlanningProblem, settings: Settings, *,
-          iteration_callback: Callable[[IterationLog], None] | None = None,
-          cancel: threading.Event | None = None) -> PlanResult:
-    """Run the stages on a posed problem and return the best plan."""
-    problem = posed.problem
-    continuation = getattr(settings.continuation, problem.contact_model.name)
-
-    def evaluate(z, status, elapsed_s, log):
-        return evaluate_plan(problem, z, status, elapsed_s, log, beta=posed.beta,
-                             initial_distance_m=posed.initial_distance_m,
-                             success_position_error_m=settings.task.success_position_error_m)
-
-    return optimize(problem, IpoptSolver(settings.solver), settings.solver, continuation, evaluate,
-                    iteration_callback=iteration_callback, cancel=cancel)
-
-
-def evaluate_plan(problem: PushProblem, z: np.ndarray, status: Status, solve_time_s: float,
-                  log: list[IterationLog], *, beta: float | None, initial_distance_m: float,
-                  success_position_error_m: float) -> PlanResult:
-    """Simulate the plan with and without the virtual force and compute the metrics."""
-    simulator, model = problem.simulator, problem.contact_model
-    torques, variables = problem.split(z)
-    control = model.contact_control(variables)
-    # the optimizer's own rollout of z (usually cached) is the planned trajectory
-    evaluation = problem.evaluate(z)
-    trajectory = simulator.trajectory(problem.initial_state, evaluation.states, evaluation.sensordata,
-                                      simulator.step_controls(evaluation.knot_controls), evaluation.warnings)
-    replay = simulator.rollout(problem.initial_state, torques, control, virtual_force=False)
+def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) -> PlanResult:
+    """Simulate the plan: with the virtual force as planned, executed without it, and tracked by a
+    PD joint trajectory controller; compute the metrics."""
+    discovery, executor = outcome.discovery, outcome.executor
+    simulator, task = discovery.simulator, discovery.task
+    _, variables = discovery.split(outcome.planned_z)
+    planned = _trajectory(discovery, outcome.planned_z)
+    trajectory = _trajectory(executor, executor.with_torques(outcome.torques))
+    tracked = tracking.track(simulator, discovery.initial_state, trajectory, settings.tracking)
 
     def errors(result: Trajectory) -> tuple[float, float]:
-        final = np.concatenate([result.object_position_m[-1], result.object_quaternion[-1]])
-        _, position_error, angle_error = problem.terminal_cost(final)
+        position_error, angle_error = task.pose_error(
+            np.concatenate([result.object_position_m[-1], result.object_quaternion[-1]]))
         return float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error))
 
     position_error, orientation_error = errors(trajectory)
-    replay_position_error, replay_orientation_error = errors(replay)
-    if not (trajectory.finite and replay.finite) or trajectory.warnings:
+    planned_position_error, planned_orientation_error = errors(planned)
+    speed_ratio = float(np.max(np.abs(trajectory.qdot) / discovery.scene.velocity_limit))
+    status = outcome.status
+    if not (trajectory.finite and planned.finite) or trajectory.warnings or planned.warnings:
         status = Status.NUMERICAL_ERROR
+    usable = status is not Status.NUMERICAL_ERROR and math.isfinite(position_error)
     metrics = Metrics(
         position_error_m=position_error,
         orientation_error_rad=orientation_error,
-        physical_inaccuracy_Ns=float(simulator.timestep_s * np.sum(trajectory.gamma_N)),
-        replay_position_error_m=replay_position_error,
-        replay_orientation_error_rad=replay_orientation_error,
-        solve_time_s=solve_time_s,
-        iterations=log[-1].iteration if log else 0,
+        tracked_position_error_m=errors(tracked)[0],
+        tracked_orientation_error_rad=errors(tracked)[1],
+        planned_position_error_m=planned_position_error,
+        planned_orientation_error_rad=planned_orientation_error,
+        physical_inaccuracy_Ns=float(simulator.timestep_s * np.sum(planned.gamma_N)),
+        max_joint_speed_ratio=speed_ratio,
+        final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(
+            executor.evaluate(executor.with_torques(outcome.torques)).states[-1])[:3])),
+        solve_time_s=outcome.solve_time_s,
+        iterations=sum(record.iterations for record in outcome.stages),
         status=status,
-        success=bool(math.isfinite(position_error) and position_error < success_position_error_m
-                     and status is not Status.NUMERICAL_ERROR),
+        success=bool(usable and position_error < settings.task.success_position_error_m
+                     and orientation_error < settings.task.success_orientation_error_rad
+                     and speed_ratio <= settings.limits.max_joint_speed_ratio),
+        planned_success=bool(usable and planned_position_error < settings.task.planned_success_position_error_m),
     )
     return PlanResult(
-        contact_model=model.name,
-        beta=beta,
-        initial_distance_m=initial_distance_m,
-        target_position_m=problem.task.target_position_m.copy(),
-        target_yaw_rad=problem.task.target_yaw_rad,
-        knot_time_s=np.arange(problem.n_knots + 1) * simulator.control_period_s,
-        knot_torques_Nm=torques.copy(),
-        knot_contact_control=control.copy(),
-        knot_variables={v.name: variables[:, i].copy() for i, v in enumerate(model.knot_variables)},
+        contact_model=discovery.contact_model.name,
+        beta=posed.beta,
+        initial_distance_m=posed.initial_distance_m,
+        target_position_m=task.target_position_m.copy(),
+        target_yaw_rad=task.target_yaw_rad,
+        knot_time_s=np.arange(discovery.n_knots + 1) * simulator.control_period_s,
+        knot_torques_Nm=np.array(outcome.torques, dtype=float),
+        knot_contact_control=discovery.contact_control(variables).copy(),
+        knot_variables={v.name: variables[:, i].copy() for i, v in enumerate(discovery.variables)},
         trajectory=trajectory,
-        replay=replay,
+        planned=planned,
+        tracked=tracked,
         metrics=metrics,
-        iteration_log=tuple(log),
-        derivative_info=dict(evaluation.derivative_info),
+        iteration_log=outcome.log,
+        stages=outcome.stages,
+        derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
     )
+
+
+def _trajectory(problem, z: np.ndarray) -> Trajectory:
+    """The rollout of z that problem evaluated (usually cached), decoded."""
+    evaluation = problem.evaluate(z)
+    return problem.simulator.trajectory(problem.initial_state, evaluation.states, evaluation.sensordata,
+                                        problem.simulator.step_controls(evaluation.knot_controls),
+                                        evaluation.warnings)

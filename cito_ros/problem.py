@@ -1,8 +1,11 @@
-"""The single-shooting push problem of the paper (section II.C): layout, cost, constraints.
+"""The single-shooting push problem of the paper (section II.C), and the stage costs beyond it.
 
 ROS-free. Decision vector z, knot-major: at each of the N knots, the 7 joint
 torques u_l, then the contact model's knot variables (VSCM: k_l; CCCM: gamma_l,
-s_l; SCM: none). Cost, eqs. (8)-(9) (+ w5 sum s^2 for CCCM):
+s_l; SCM: none). A stage without the virtual force (`StageCost.virtual_force`
+False) has the torques alone and the contact control held at 0: the dynamics
+the plan is executed with. The paper's cost, eqs. (8)-(9) (+ w5 sum s^2 for
+CCCM):
 
     c_f = w1 ||(p_T - p*) / max(||p_0 - p*||, d_min)||^2 + w2 ||theta_T||^2
     c_i = (t_c / N) sum_l (w3 <||xdot||^2>_l + w4 <gamma^2>_l)
@@ -11,7 +14,10 @@ with theta_T the Euler angles (roll, pitch, yaw) of the object's rotation
 relative to the target, and <.>_l the mean over knot l's simulation steps of the
 end-effector (plate centre) speed squared and the virtual force squared.
 Constraints, when the contact model has any (CCCM), act on the knot means of the
-signed distance phi.
+signed distance phi. Beyond the paper, a stage may add (each zero by default
+weight, see `StageCost`): penalties on joint speeds and positions beyond a
+margin of their limits, on the object's final velocity, and a contact term
+that draws the plate onto the object's face at chosen steps.
 
 A `PushProblem` is what a solver sees (cito_ros.solver.NlpProblem): size,
 bounds, scales, `evaluate` (cost and constraints, cached), `gradient` and
@@ -33,6 +39,55 @@ from cito_ros.settings import DerivativeSettings, Weights
 from cito_ros.simulator import Simulator
 from cito_ros.task import PushTask
 
+CACHED_EVALUATIONS = 6
+
+
+@dataclass(frozen=True)
+class StageCost:
+    """What one stage minimizes: the paper's weighted terms, and the terms beyond the paper.
+
+    joint_speed: weight of (1/T) sum_t,j max(0, |qdot_tj| / limit_j - margin)^2
+    joint_position: weight of (1/T) sum_t,j (distance beyond [low + margin, high - margin] in rad)^2
+    object_velocity: weight of |v_T|^2 + (h |w_T|)^2 (the object's final linear and angular
+      velocity, h its half size): a plan that ends with the object at rest
+    contact: weight of sum_t profile_t max(gap_t, 0)^2, gap_t the distance between the plate and the
+      object (the plate drawn onto the object at the steps the profile weights)
+    """
+
+    weights: Weights
+    virtual_force: bool
+    joint_speed: float
+    joint_speed_margin: float
+    joint_position: float
+    joint_position_margin_rad: float
+    object_velocity: float
+    contact: float
+    contact_profile: np.ndarray | None  # (T,) step weights of the contact term
+
+    @classmethod
+    def paper(cls, weights: Weights) -> "StageCost":
+        return cls(weights, True, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, None)
+
+
+@dataclass(frozen=True)
+class KnotExpansion:
+    """z expanded knot by knot (N knots, nx = 2 nv tangent states, w decisions per knot): knot_states
+    (N+1, nstate) at each knot start, dynamics F_x (N, nx, nx) and F_c (N, nx, w) from a knot's start
+    to the next, the Gauss-Newton expansion of each knot's running cost (l_x, l_c, l_xx, l_cc, l_cx)
+    and of the terminal cost (v_x, v_xx)."""
+
+    knot_states: np.ndarray
+    fx: np.ndarray
+    fc: np.ndarray
+    lx: np.ndarray
+    lc: np.ndarray
+    lxx: np.ndarray
+    lcc: np.ndarray
+    lcx: np.ndarray
+    vx: np.ndarray
+    vxx: np.ndarray
+    derivative_info: dict[str, int]
+
 
 @dataclass
 class Evaluation:
@@ -48,27 +103,30 @@ class Evaluation:
     constraints: np.ndarray       # (N * m,)
     knot_signed_distance: np.ndarray  # (N,)
     finite: bool
+    residuals: np.ndarray         # r: the cost is r . r
     gradient: np.ndarray | None = None
     jacobian: np.ndarray | None = None
+    residual_jacobian: np.ndarray | None = None
     derivative_info: dict[str, int] = field(default_factory=dict)
 
 
 class PushProblem:
     """Cost, constraints and derivatives of pushing the object to `task` from `initial_state`."""
 
-    def __init__(self, simulator: Simulator, initial_state: np.ndarray, task: PushTask, weights: Weights,
+    def __init__(self, simulator: Simulator, initial_state: np.ndarray, task: PushTask, cost: StageCost,
                  derivative_settings: DerivativeSettings, position_error_scale_min_m: float):
         self.simulator = simulator
         self.scene = simulator.scene
         self.contact_model = self.scene.contact_model
         self.initial_state = simulator.validate_state(initial_state)
         self.task = task
-        self.weights = weights
+        self.cost = cost
+        self.weights = cost.weights
         self.derivative_settings = derivative_settings
         model = self.scene.model
         self.n_knots, self.steps_per_knot, self.n_steps = simulator.n_knots, simulator.steps_per_knot, simulator.n_steps
         self.n_joints = len(ARM_JOINTS)
-        self.variables = self.contact_model.knot_variables
+        self.variables = self.contact_model.knot_variables if cost.virtual_force else ()
         self.width = self.n_joints + len(self.variables)
         self.size = self.n_knots * self.width
 
@@ -81,19 +139,25 @@ class PushProblem:
 
         self.initial_object_position = self.scene.object_qpos(self.initial_state)[:3].copy()
         self.initial_position_error_m = float(np.linalg.norm(self.initial_object_position - task.target_position_m))
+        self.position_scale_min_m = position_error_scale_min_m
         self.position_scale = max(self.initial_position_error_m, position_error_scale_min_m)
 
         sensors = self.scene.sensors
         self.ee_rows = np.arange(sensors.ee_velocity.start, sensors.ee_velocity.stop)
         self.gamma_row = sensors.gamma.start
         self.local_rows = np.arange(sensors.robot_candidate_in_object.start, sensors.robot_candidate_in_object.stop)
-        self.used_rows = np.concatenate([self.ee_rows, [self.gamma_row], self.local_rows])
+        self.q_rows = np.arange(sensors.joint_position.start, sensors.joint_position.stop)
+        self.qdot_rows = np.arange(sensors.joint_velocity.start, sensors.joint_velocity.stop)
+        self.gap_row = sensors.plate_gap.start
+        self.used_rows = np.concatenate([self.ee_rows, [self.gamma_row], self.local_rows, self.q_rows, self.qdot_rows,
+                                         [self.gap_row]])
         # running-cost factor: (t_c / N) per knot, averaged over the knot's steps
         self.running_factor = simulator.control_period_s / self.n_knots / self.steps_per_knot
-        self.n_constraints_per_knot = len(self.contact_model.knot_constraints(
-            np.zeros(self.n_knots), self.initial_guess.reshape(self.n_knots, self.width)[:, self.n_joints:]).lower)
+        self.n_constraints_per_knot = len(self.constraint_bounds()[0]) // self.n_knots
         self.n_constraints = self.n_knots * self.n_constraints_per_knot
-        self._cache: Evaluation | None = None
+        low, high = self.scene.joint_range.T
+        self.soft_joint_range = (low + cost.joint_position_margin_rad, high - cost.joint_position_margin_rad)
+        self._cache: list[Evaluation] = []  # the latest evaluations (a solver's point and its trial)
         # one mjData per linearization thread, owned here (the native code keeps none)
         self._linearization_data = tuple(mujoco.MjData(model) for _ in range(derivative_settings.threads))
 
@@ -103,16 +167,36 @@ class PushProblem:
         knots = np.asarray(z, dtype=float).reshape(self.n_knots, self.width)
         return knots[:, :self.n_joints], knots[:, self.n_joints:]
 
+    def contact_control(self, variables: np.ndarray) -> np.ndarray:
+        """The contact actuator's control per knot (0 without the virtual force)."""
+        if not self.cost.virtual_force:
+            return np.zeros(self.n_knots)
+        return self.contact_model.contact_control(variables)
+
     def knot_controls(self, z: np.ndarray) -> np.ndarray:
         torques, variables = self.split(z)
         controls = np.zeros((self.n_knots, self.scene.model.nu))
         controls[:, self.scene.motor_ids] = torques
-        controls[:, self.scene.contact_actuator_id] = self.contact_model.contact_control(variables)
+        controls[:, self.scene.contact_actuator_id] = self.contact_control(variables)
         return controls
 
+    def with_torques(self, torques: np.ndarray, variables: np.ndarray | None = None) -> np.ndarray:
+        """The decision vector of (N, 7) torques and (N, n_var) knot variables (default: their start)."""
+        knots = self.initial_guess.reshape(self.n_knots, self.width).copy()
+        knots[:, :self.n_joints] = torques
+        if variables is not None and self.variables:
+            knots[:, self.n_joints:] = variables
+        return knots.reshape(-1)
+
+    def _knot_constraints(self, phi: np.ndarray, variables: np.ndarray):
+        if not self.cost.virtual_force:
+            return None
+        return self.contact_model.knot_constraints(phi, variables)
+
     def constraint_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        constraints = self.contact_model.knot_constraints(
-            np.zeros(self.n_knots), self.split(self.initial_guess)[1])
+        constraints = self._knot_constraints(np.zeros(self.n_knots), self.split(self.initial_guess)[1])
+        if constraints is None:
+            return np.zeros(0), np.zeros(0)
         return np.tile(constraints.lower, self.n_knots), np.tile(constraints.upper, self.n_knots)
 
     def variable_column(self, name: str) -> int:
@@ -122,68 +206,131 @@ class PushProblem:
             raise ValueError(f"{name!r} is not one of {self.contact_model.name}'s knot variables {names}")
         return self.n_joints + names.index(name)
 
-    # ------------------------------------------------------------------ cost pieces
+    # ------------------------------------------------------------------ residuals
+
+    def _terminal_residuals(self, final_state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals of the final state, and their derivatives with respect to it (tangent space):
+        position (3) and Euler angles (3) against the target, then the object's velocity (6)."""
+        w, c, nv = self.weights, self.cost, self.scene.model.nv
+        dof = self.scene.object_dof_adr
+        object_qpos = self.scene.object_qpos(final_state)
+        position_error, angle_error = self.task.pose_error(object_qpos)
+        position_root, angle_root = math.sqrt(w.w1) / self.position_scale, math.sqrt(w.w2)
+        rows = 12 if c.object_velocity else 6
+        residuals, jacobian = np.zeros(rows), np.zeros((rows, 2 * nv))
+        residuals[:3], residuals[3:6] = position_root * position_error, angle_root * angle_error
+        jacobian[:3, dof:dof + 3] = position_root * np.eye(3)
+        h = 1e-6  # Euler angles by central differences in the object's local rotation
+        for axis in range(3):
+            turned = []
+            for sign in (1.0, -1.0):
+                quaternion = object_qpos[3:7].copy()
+                mujoco.mju_quatIntegrate(quaternion, np.eye(3)[axis], sign * h)
+                turned.append(self.task.angle_error(quaternion))
+            jacobian[3:6, dof + 3 + axis] = angle_root * (turned[0] - turned[1]) / (2 * h)
+        if c.object_velocity:
+            root = math.sqrt(c.object_velocity)
+            scale = np.array([1.0, 1.0, 1.0, *[float(self.scene.object_half_size[0])] * 3])
+            residuals[6:] = root * scale * self.scene.object_qvel(final_state)
+            jacobian[6:, nv + dof:nv + dof + 6] = np.diag(root * scale)
+        return residuals, jacobian
+
+    def _running_residuals(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals of every step, (T, k), and their derivatives with respect to the step's used
+        sensor rows, (T, k, rows): end-effector velocity (3), the virtual force (1, with it), joint
+        speeds (7) and positions (7) beyond their margins, the contact term (1: the plate-object gap)."""
+        w, c, T = self.weights, self.cost, self.n_steps
+        used = {name: slice(start, start + size) for name, start, size in (
+            ("ee", 0, 3), ("gamma", 3, 1), ("local", 4, 3), ("q", 7, 7), ("qdot", 14, 7), ("gap", 21, 1))}
+        blocks: list[tuple[np.ndarray, np.ndarray]] = []  # (residuals (T, k), jacobian (T, k, rows))
+
+        def block(values: np.ndarray, derivative: np.ndarray, rows: slice) -> None:
+            jacobian = np.zeros((T, values.shape[1], len(self.used_rows)))
+            jacobian[:, :, rows] = derivative
+            blocks.append((values, jacobian))
+
+        root = math.sqrt(self.running_factor * w.w3)
+        block(root * sensordata[:, self.ee_rows], np.broadcast_to(root * np.eye(3), (T, 3, 3)), used["ee"])
+        if self.cost.virtual_force:
+            root = math.sqrt(self.running_factor * w.w4)
+            block(root * sensordata[:, [self.gamma_row]], np.full((T, 1, 1), root), used["gamma"])
+        if c.joint_speed:
+            root = math.sqrt(c.joint_speed / T)
+            qdot = sensordata[:, self.qdot_rows]
+            excess = np.maximum(np.abs(qdot) / self.scene.velocity_limit - c.joint_speed_margin, 0.0)
+            slope = root * (excess > 0) * np.sign(qdot) / self.scene.velocity_limit
+            block(root * excess, slope[:, :, None] * np.eye(7), used["qdot"])
+        if c.joint_position:
+            root = math.sqrt(c.joint_position / T)
+            q = sensordata[:, self.q_rows]
+            low, high = self.soft_joint_range
+            excess = np.maximum(q - high, 0.0) + np.minimum(q - low, 0.0)
+            block(root * excess, (root * (excess != 0))[:, :, None] * np.eye(7), used["q"])
+        if c.contact:
+            gap = sensordata[:, self.gap_row]
+            root = np.sqrt(c.contact * c.contact_profile) * (gap > 0)
+            block((root * gap)[:, None], root[:, None, None], used["gap"])
+        return np.concatenate([b[0] for b in blocks], axis=1), np.concatenate([b[1] for b in blocks], axis=1)
+
+    def _signed_distance_derivative(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """phi per step and its derivative with respect to the robot candidate in the object frame."""
+        offset = sensordata[:, self.local_rows] - self.scene.object_candidate_in_geom
+        distance = np.linalg.norm(offset, axis=1, keepdims=True)
+        phi = self.signed_distance(sensordata)
+        return phi, np.sign(phi)[:, None] * offset / np.maximum(distance, 1e-12)
+
+    def signed_distance(self, sensordata: np.ndarray) -> np.ndarray:
+        return self.scene.signed_distance_from_local(sensordata[..., self.local_rows])
 
     def terminal_cost(self, object_qpos: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        """Final cost c_f, position error vector (m) and Euler-angle error (rad)."""
+        """The paper's final cost c_f, the position error vector (m) and the Euler-angle error (rad)."""
         position_error, angle_error = self.task.pose_error(object_qpos)
         cost = (self.weights.w1 * float(np.sum((position_error / self.position_scale) ** 2))
                 + self.weights.w2 * float(np.sum(angle_error ** 2)))
         return cost, position_error, angle_error
 
-    def terminal_gradient(self, object_qpos: np.ndarray) -> np.ndarray:
-        """d c_f / d(object pose) in MuJoCo's tangent space (world translation, local rotation)."""
-        gradient = 2 * self.weights.w1 * (object_qpos[:3] - self.task.target_position_m) / self.position_scale ** 2
-        rotation_gradient = np.zeros(3)
-        h = 1e-6
-        for axis in range(3):
-            values = []
-            for sign in (1.0, -1.0):
-                quaternion = object_qpos[3:7].copy()
-                mujoco.mju_quatIntegrate(quaternion, np.eye(3)[axis], sign * h)
-                values.append(self.weights.w2 * float(np.sum(self.task.angle_error(quaternion) ** 2)))
-            rotation_gradient[axis] = (values[0] - values[1]) / (2 * h)
-        return np.concatenate([gradient, rotation_gradient])
-
-    def signed_distance(self, sensordata: np.ndarray) -> np.ndarray:
-        return self.scene.signed_distance_from_local(sensordata[..., self.local_rows])
-
     # ------------------------------------------------------------------ evaluation
 
     def _outputs(self, states: np.ndarray, sensordata: np.ndarray, variables: np.ndarray):
-        """Cost terms, constraints and knot mean signed distances of one rollout."""
-        w = self.weights
-        terminal, _, _ = self.terminal_cost(self.scene.object_qpos(states[-1]))
-        speed2 = np.sum(sensordata[:, self.ee_rows] ** 2, axis=1)
-        gamma = sensordata[:, self.gamma_row]
-        velocity_term = self.running_factor * w.w3 * float(np.sum(speed2))
-        force_term = self.running_factor * w.w4 * float(np.sum(gamma ** 2))
-        variable_term, _ = self.contact_model.variable_cost(variables, w)
+        """Residual blocks (terminal, running, variables), constraints and knot mean signed distances."""
+        terminal, _ = self._terminal_residuals(states[-1])
+        running, _ = self._running_residuals(sensordata)
+        extra = self.contact_model.variable_residuals(variables, self.weights)[0] if self.variables else np.zeros(0)
         phi = self.signed_distance(sensordata).reshape(self.n_knots, self.steps_per_knot).mean(axis=1)
-        constraints = self.contact_model.knot_constraints(phi, variables)
-        terms = {"terminal": terminal, "velocity": velocity_term, "force": force_term, "variables": variable_term}
-        return terms, constraints.values.reshape(-1), phi
+        constraints = self._knot_constraints(phi, variables)
+        values = np.zeros(0) if constraints is None else constraints.values.reshape(-1)
+        return (terminal, running, extra), values, phi
 
     def evaluate(self, z: np.ndarray) -> Evaluation:
         z = np.asarray(z, dtype=float)
-        if self._cache is not None and np.array_equal(self._cache.z, z):
-            return self._cache
-        _, variables = self.split(z)
-        knot_controls = self.knot_controls(z)
-        step_controls = self.simulator.step_controls(knot_controls)
+        for cached in self._cache:
+            if np.array_equal(cached.z, z):
+                return cached
+        step_controls = self.simulator.step_controls(self.knot_controls(z))
         states, sensordata, warnings = self.simulator.rollout_batch(self.initial_state[None], step_controls[None])
-        states, sensordata = states[0], sensordata[0]
+        return self.remember(z, states[0], sensordata[0], warnings)
+
+    def remember(self, z: np.ndarray, states: np.ndarray, sensordata: np.ndarray,
+                 warnings: dict[str, int]) -> Evaluation:
+        """The evaluation of z from its rollout (states after and sensors before each step), cached: for a
+        solver that has simulated z itself."""
+        z = np.asarray(z, dtype=float)
+        _, variables = self.split(z)
         finite = bool(np.all(np.isfinite(states)) and np.all(np.isfinite(sensordata)))
         if finite:
-            terms, constraints, phi = self._outputs(states, sensordata, variables)
-            cost = float(sum(terms.values()))
+            (terminal, running, extra), constraints, phi = self._outputs(states, sensordata, variables)
+            residuals = np.concatenate([terminal, running.ravel(), extra])
+            terms = {"terminal": float(terminal @ terminal), "running": float(np.sum(running ** 2)),
+                     "variables": float(extra @ extra)}
+            cost = float(residuals @ residuals)
             finite = math.isfinite(cost) and bool(np.all(np.isfinite(constraints)))
         else:
-            terms, cost = {}, math.inf
+            terms, cost, residuals = {}, math.inf, np.zeros(0)
             constraints, phi = np.full(self.n_constraints, math.nan), np.full(self.n_knots, math.nan)
-        self._cache = Evaluation(z.copy(), knot_controls, states, sensordata, warnings, cost, terms,
-                                 constraints, phi, finite)
-        return self._cache
+        evaluation = Evaluation(z.copy(), self.knot_controls(z), states, sensordata, warnings, cost, terms,
+                                constraints, phi, finite, residuals)
+        self._cache = [evaluation, *self._cache[:CACHED_EVALUATIONS - 1]]
+        return evaluation
 
     # ------------------------------------------------------------------ derivatives
 
@@ -193,22 +340,77 @@ class PushProblem:
     def jacobian(self, z: np.ndarray) -> np.ndarray:
         return self.derivatives(z).jacobian
 
+    def residuals(self, z: np.ndarray) -> np.ndarray:
+        """The residual vector r (the cost is r . r)."""
+        return self.evaluate(z).residuals
+
     def derivatives(self, z: np.ndarray, *, cached: bool = True) -> Evaluation:
         """Evaluation with the cost gradient (size,) and constraint Jacobian (n_constraints, size)."""
-        evaluation = self.evaluate(z)
+        evaluation = self._finite(z)
         if cached and evaluation.gradient is not None:
             return evaluation
-        if not evaluation.finite:
-            raise FloatingPointError("the rollout is not finite; no derivatives")
         if self.derivative_settings.method == "forward_differences":
             info = {"restarted_knots": self.n_knots}
             d_dynamics, d_phi = self._restart_differences(evaluation, self.n_knots)
         else:
             d_dynamics, d_phi, info = self._adjoint(evaluation)
-        _, variables = self.split(evaluation.z)
-        gradient = d_dynamics + self._knot_layout(self.contact_model.variable_cost(variables, self.weights)[1])
+        gradient = d_dynamics
+        if self.variables:
+            _, variables = self.split(evaluation.z)
+            values, derivative = self.contact_model.variable_residuals(variables, self.weights)
+            gradient = gradient + self._knot_layout(2 * np.einsum("k,kln->ln", values, derivative))
         evaluation.gradient, evaluation.jacobian = gradient, self._constraint_jacobian(evaluation, d_phi)
         evaluation.derivative_info = info
+        return evaluation
+
+    def residual_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """dr/dz (len(r), size): forward sensitivities through the per-step linearizations, with
+        knot-restart differences for the knots up to a step whose linearization is unreliable."""
+        evaluation = self._finite(z)
+        if evaluation.residual_jacobian is not None:
+            return evaluation.residual_jacobian
+        if self.derivative_settings.method == "forward_differences":
+            jacobian = np.zeros((len(evaluation.residuals), self.size))
+            dynamic = self._restart_differences(evaluation, self.n_knots, residuals=True)[1]
+            jacobian[:len(dynamic)] = dynamic
+            if self.variables:
+                _, variables = self.split(evaluation.z)
+                _, derivative = self.contact_model.variable_residuals(variables, self.weights)
+                if len(derivative):
+                    jacobian[len(dynamic):] = np.stack([self._knot_layout(d) for d in derivative])
+            evaluation.residual_jacobian, evaluation.derivative_info = jacobian, {"restarted_knots": self.n_knots}
+            return jacobian
+        linearization = self.linearize(z)
+        S, N, nu = self.steps_per_knot, self.n_knots, self.scene.model.nu
+        d_sensors, d_final = derivatives.forward_sensitivities(
+            linearization.A, linearization.B, linearization.C[:, self.used_rows, :],
+            linearization.D[:, self.used_rows, :], S)
+        _, terminal_jacobian = self._terminal_residuals(evaluation.states[-1])
+        _, running_jacobian = self._running_residuals(evaluation.sensordata)
+        by_controls = np.concatenate([terminal_jacobian @ d_final,
+                                      np.einsum("tkr,trc->tkc", running_jacobian, d_sensors).reshape(-1, N * nu)])
+        jacobian = np.zeros((len(evaluation.residuals), self.size))
+        rows = by_controls.shape[0]
+        jacobian[:rows] = self._to_decisions(by_controls.reshape(rows, N, nu))
+        if self.variables:
+            _, variables = self.split(evaluation.z)
+            _, derivative = self.contact_model.variable_residuals(variables, self.weights)
+            if len(derivative):
+                jacobian[rows:] = np.stack([self._knot_layout(d) for d in derivative])
+        info = {**linearization.info(), "restarted_knots": 0}
+        unresolved = linearization.unresolved_steps
+        if unresolved.size:
+            knots = int(unresolved.max() // S) + 1
+            info["restarted_knots"] = knots
+            columns = slice(0, knots * self.width)
+            jacobian[:rows, columns] = self._restart_differences(evaluation, knots, residuals=True)[1][:rows, columns]
+        evaluation.residual_jacobian, evaluation.derivative_info = jacobian, info
+        return jacobian
+
+    def _finite(self, z: np.ndarray) -> Evaluation:
+        evaluation = self.evaluate(z)
+        if not evaluation.finite:
+            raise FloatingPointError("the rollout is not finite; no derivatives")
         return evaluation
 
     def linearize(self, z: np.ndarray) -> derivatives.Linearization:
@@ -223,28 +425,20 @@ class PushProblem:
         """d(dynamic cost terms)/dz and d(knot mean phi)/dz through the dynamics, by the adjoint pass."""
         linearization = self.linearize(evaluation.z)
         T, S, N = self.n_steps, self.steps_per_knot, self.n_knots
-        nx = 2 * self.scene.model.nv
-        sensordata = evaluation.sensordata
         m = self.n_constraints_per_knot
         n_out = 1 + (N if m else 0)  # the cost, then the knot mean signed distances
-
-        # d(outputs)/d(used sensor rows) per step: rows = [ee velocity (3), gamma, robot-in-object (3)]
+        # d(cost)/d(sensors) = 2 G_t^T rho_t per step; d(knot mean phi)/d(sensors) for the constraints
+        running, running_jacobian = self._running_residuals(evaluation.sensordata)
         weights = np.zeros((T, len(self.used_rows), n_out))
-        weights[:, 0:3, 0] = 2 * self.running_factor * self.weights.w3 * sensordata[:, self.ee_rows]
-        weights[:, 3, 0] = 2 * self.running_factor * self.weights.w4 * sensordata[:, self.gamma_row]
+        weights[:, :, 0] = 2 * np.einsum("tk,tkr->tr", running, running_jacobian)
         if m:
-            local = sensordata[:, self.local_rows]
-            offset = local - self.scene.object_candidate_in_geom
-            distance = np.linalg.norm(offset, axis=1, keepdims=True)
-            sign = np.sign(self.signed_distance(sensordata))[:, None]
-            d_phi_d_local = sign * offset / np.maximum(distance, 1e-12) / S
-            knot_of_step = np.arange(T) // S
-            weights[np.arange(T), 4:7, 1 + knot_of_step] = d_phi_d_local
-        terminal = np.zeros((nx, n_out))
-        dof = self.scene.object_dof_adr
-        terminal[dof:dof + 6, 0] = self.terminal_gradient(self.scene.object_qpos(evaluation.states[-1]))
+            _, d_phi_d_local = self._signed_distance_derivative(evaluation.sensordata)
+            weights[np.arange(T), 4:7, 1 + np.arange(T) // S] = d_phi_d_local / S
+        terminal, terminal_jacobian = self._terminal_residuals(evaluation.states[-1])
+        seed = np.zeros((2 * self.scene.model.nv, n_out))
+        seed[:, 0] = 2 * terminal_jacobian.T @ terminal
         d_controls = derivatives.adjoint(linearization.A, linearization.B, linearization.C[:, self.used_rows, :],
-                                         linearization.D[:, self.used_rows, :], weights, terminal, S)
+                                         linearization.D[:, self.used_rows, :], weights, seed, S)
 
         gradient, d_phi = self._to_decisions(d_controls[:, :, 0]), None
         info = {**linearization.info(), "restarted_knots": 0}
@@ -261,14 +455,19 @@ class PushProblem:
                 d_phi[:, columns] = fd_d_phi[:, columns]
         return gradient, d_phi, info
 
+    def _control_column(self) -> int | None:
+        """The knot variable that is the contact control, if the decisions include it."""
+        return self.contact_model.control_variable if self.variables else None
+
     def _to_decisions(self, d_knot_controls: np.ndarray) -> np.ndarray:
-        """Map d/d(knot controls) (N, nu) to d/dz (through the dynamics only)."""
-        gradient = np.zeros((self.n_knots, self.width))
-        gradient[:, :self.n_joints] = d_knot_controls[:, self.scene.motor_ids]
-        index = self.contact_model.control_variable
+        """Map d/d(knot controls) (..., N, nu) to d/dz (..., size) (through the dynamics only)."""
+        lead = d_knot_controls.shape[:-2]
+        gradient = np.zeros((*lead, self.n_knots, self.width))
+        gradient[..., :self.n_joints] = d_knot_controls[..., self.scene.motor_ids]
+        index = self._control_column()
         if index is not None:
-            gradient[:, self.n_joints + index] = d_knot_controls[:, self.scene.contact_actuator_id]
-        return gradient.reshape(-1)
+            gradient[..., self.n_joints + index] = d_knot_controls[..., self.scene.contact_actuator_id]
+        return gradient.reshape(*lead, self.size)
 
     def _knot_layout(self, variable_array: np.ndarray) -> np.ndarray:
         full = np.zeros((self.n_knots, self.width))
@@ -281,7 +480,7 @@ class PushProblem:
         if not m:
             return jacobian
         _, variables = self.split(evaluation.z)
-        constraints = self.contact_model.knot_constraints(evaluation.knot_signed_distance, variables)
+        constraints = self._knot_constraints(evaluation.knot_signed_distance, variables)
         for l in range(self.n_knots):
             for c in range(m):
                 row = l * m + c
@@ -290,21 +489,88 @@ class PushProblem:
                 jacobian[row, start:start + len(self.variables)] += constraints.d_variables[l, c]
         return jacobian
 
-    def _restart_differences(self, evaluation: Evaluation, knots: int):
-        """d(dynamic cost terms)/dz and d(knot mean phi)/dz for the first `knots` knots by knot-restart
-        forward differences (cito_ros.derivatives.restart_differences)."""
+    def _restart_differences(self, evaluation: Evaluation, knots: int, residuals: bool = False):
+        """Knot-restart forward differences (cito_ros.derivatives.restart_differences) for the first
+        `knots` knots: d(dynamic cost)/dz and d(knot mean phi)/dz, or with residuals=True the
+        dynamic cost's derivative and d(terminal and running residuals)/dz."""
         _, variables = self.split(evaluation.z)
-        acting = [c for c in range(self.width) if c < self.n_joints
-                  or c - self.n_joints == self.contact_model.control_variable]
+        control = self._control_column()
+        acting = [c for c in range(self.width) if c < self.n_joints or c - self.n_joints == control]
         columns = [np.array([knot * self.width + c for c in acting]) for knot in range(knots)]
         steps = self.derivative_settings.restart_step * self.scale
         steps = np.where(evaluation.z + steps > self.upper, -steps, steps)
 
         def outputs(states, sensordata):
-            terms, _, phi = self._outputs(states, sensordata, variables)
-            return terms["terminal"] + terms["velocity"] + terms["force"], phi if self.n_constraints_per_knot else None
+            (terminal, running, _), _, phi = self._outputs(states, sensordata, variables)
+            dynamic = float(terminal @ terminal) + float(np.sum(running ** 2))
+            if residuals:
+                return dynamic, np.concatenate([terminal, running.ravel()])
+            return dynamic, phi if self.n_constraints_per_knot else None
 
         states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
         return derivatives.restart_differences(
             self.simulator, states_before, evaluation.states, evaluation.sensordata, evaluation.z, columns, steps,
             lambda z: self.simulator.step_controls(self.knot_controls(z)), outputs)
+
+    # ------------------------------------------------------------------ knot-wise model (iLQR)
+
+    def decision_map(self) -> np.ndarray:
+        """(nu, width): the actuator controls of one knot as a linear map of its decisions."""
+        P = np.zeros((self.scene.model.nu, self.width))
+        P[self.scene.motor_ids, np.arange(self.n_joints)] = 1.0
+        index = self._control_column()
+        if index is not None:
+            P[self.scene.contact_actuator_id, self.n_joints + index] = 1.0
+        return P
+
+    def knot_expansion(self, z: np.ndarray) -> KnotExpansion:
+        """The cost and dynamics of z expanded knot by knot to second (Gauss-Newton) and first order:
+        the state at each knot start, the knot-to-knot Jacobians, and the derivatives of each knot's
+        running cost and of the terminal cost with respect to the knot's start state and decisions."""
+        evaluation = self._finite(z)
+        linearization = self.linearize(z)
+        S, N, w = self.steps_per_knot, self.n_knots, self.width
+        nx = 2 * self.scene.model.nv
+        running, G = self._running_residuals(evaluation.sensordata)
+        C, D = linearization.C[:, self.used_rows, :], linearization.D[:, self.used_rows, :]
+        P = self.decision_map()
+        X = np.repeat(np.eye(nx)[None], N, axis=0)   # d x_t / d x_l, all knots at once
+        U = np.zeros((N, nx, w))                       # d x_t / d c_l
+        lx, lc = np.zeros((N, nx)), np.zeros((N, w))
+        lxx, lcc, lcx = np.zeros((N, nx, nx)), np.zeros((N, w, w)), np.zeros((N, w, nx))
+        for j in range(S):
+            steps = np.arange(N) * S + j
+            Jx = G[steps] @ (C[steps] @ X)
+            Jc = G[steps] @ (C[steps] @ U + D[steps] @ P)
+            r = running[steps]
+            lx += 2 * np.einsum("nkx,nk->nx", Jx, r)
+            lc += 2 * np.einsum("nkc,nk->nc", Jc, r)
+            lxx += 2 * np.einsum("nkx,nky->nxy", Jx, Jx)
+            lcc += 2 * np.einsum("nkc,nkd->ncd", Jc, Jc)
+            lcx += 2 * np.einsum("nkc,nkx->ncx", Jc, Jx)
+            X = linearization.A[steps] @ X
+            U = linearization.A[steps] @ U + linearization.B[steps] @ P
+        if self.variables:
+            _, variables = self.split(z)
+            values, derivative = self.contact_model.variable_residuals(variables, self.weights)
+            for value, d in zip(values, derivative):  # each residual acts on one knot's variables
+                knot = int(np.argmax(np.abs(d).sum(axis=1)))
+                g = np.zeros(w)
+                g[self.n_joints:] = d[knot]
+                lc[knot] += 2 * value * g
+                lcc[knot] += 2 * np.outer(g, g)
+        terminal, JT = self._terminal_residuals(evaluation.states[-1])
+        knot_states = np.vstack([self.initial_state[None], evaluation.states[S - 1::S]])
+        return KnotExpansion(knot_states, X, U, lx, lc, lxx, lcc, lcx, 2 * JT.T @ terminal, 2 * JT.T @ JT,
+                             {**linearization.info(), "restarted_knots": 0})
+
+    def state_difference(self, states: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """Tangent-space differences states - reference, (..., nx), for mjSTATE_FULLPHYSICS states."""
+        model = self.scene.model
+        start = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_TIME)
+        states, reference = np.atleast_2d(states), np.atleast_2d(reference)
+        out = np.empty((len(states), 2 * model.nv))
+        for i, (a, b) in enumerate(zip(states, np.broadcast_to(reference, states.shape))):
+            mujoco.mj_differentiatePos(model, out[i, :model.nv], 1.0, b[start:start + model.nq], a[start:start + model.nq])
+            out[i, model.nv:] = a[start + model.nq:start + model.nq + model.nv] - b[start + model.nq:start + model.nq + model.nv]
+        return out

@@ -42,10 +42,23 @@ class Status(enum.Enum):
 
 @dataclass(frozen=True)
 class IterationLog:
-    iteration: int
+    iteration: int               # counted over the stages of one start
     cost: float
     constraint_violation: float
-    elapsed_s: float
+    elapsed_s: float             # since the solve began
+    stage: str                   # e.g. "start 1: discovery", "start 1: physical 2"
+
+
+@dataclass(frozen=True)
+class StageRecord:
+    """One stage of a solve: where the time and the iterations went."""
+
+    name: str
+    status: Status
+    iterations: int
+    seconds: float
+    cost: float                  # the stage's own cost at its end
+    position_error_m: float      # the stage's plan executed without the virtual force
 
 
 def metric(description: str) -> Any:
@@ -56,15 +69,23 @@ def metric(description: str) -> Any:
 class Metrics:
     """The figures of a plan. Every field is a column of every report and a field of PlanMetrics.msg."""
 
-    position_error_m: float = metric("final object position vs target, planned (with the virtual force)")
-    orientation_error_rad: float = metric("norm of the final Euler-angle deviation, planned")
-    physical_inaccuracy_Ns: float = metric("integral of the virtual force, sum of gamma dt (Table I)")
-    replay_position_error_m: float = metric("final position error with the same torques, virtual force off")
-    replay_orientation_error_rad: float = metric("final orientation error, virtual force off")
+    position_error_m: float = metric("the returned torques executed without the virtual force (on the robot): "
+                                     "final object position vs goal")
+    orientation_error_rad: float = metric("executed: norm of the final Euler-angle deviation from the goal")
+    tracked_position_error_m: float = metric("the returned joint trajectory executed by a PD joint trajectory "
+                                             "controller: final position error")
+    tracked_orientation_error_rad: float = metric("tracked: final orientation error")
+    planned_position_error_m: float = metric("the contact model's plan, with the virtual force (the paper's)")
+    planned_orientation_error_rad: float = metric("planned: final orientation error")
+    physical_inaccuracy_Ns: float = metric("the planned virtual force's integral, sum of gamma dt (Table I)")
+    max_joint_speed_ratio: float = metric("executed: largest |qdot_j| / velocity limit_j over the horizon")
+    final_object_speed_m_s: float = metric("executed: the object's speed at the end of the horizon")
     solve_time_s: float = metric("wall clock of the whole solve")
-    iterations: int = metric("solver iterations over all stages")
+    iterations: int = metric("solver iterations over all stages and starts")
     status: Status = metric("how the solve ended")
-    success: bool = metric("position error below task.success_position_error_m (the paper's criterion)")
+    success: bool = metric("executed within task.success_position_error_m and success_orientation_error_rad, "
+                           "and within limits.max_joint_speed_ratio")
+    planned_success: bool = metric("planned error below task.planned_success_position_error_m (the paper's)")
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-serialisable values by field name (the status by its value)."""
@@ -85,13 +106,15 @@ class PlanResult:
     target_position_m: np.ndarray
     target_yaw_rad: float
     knot_time_s: np.ndarray          # (N+1,) knot boundaries
-    knot_torques_Nm: np.ndarray      # (N, 7) u per knot
-    knot_contact_control: np.ndarray  # (N,) k (SCM/VSCM) or gamma (CCCM) per knot
-    knot_variables: dict[str, np.ndarray]  # the contact model's knot variables by name
-    trajectory: Trajectory           # per simulation step, with the virtual force
-    replay: Trajectory               # per simulation step, virtual force off
+    knot_torques_Nm: np.ndarray      # (N, 7) u per knot: the returned plan
+    knot_contact_control: np.ndarray  # (N,) k (SCM/VSCM) or gamma (CCCM) of the contact model's plan
+    knot_variables: dict[str, np.ndarray]  # the contact model's knot variables by name, in its plan
+    trajectory: Trajectory           # the returned plan executed without the virtual force (the robot's motion)
+    planned: Trajectory              # the contact model's plan, with the virtual force
+    tracked: Trajectory              # trajectory's joint motion executed by a PD joint trajectory controller
     metrics: Metrics
     iteration_log: tuple[IterationLog, ...]
+    stages: tuple[StageRecord, ...]
     derivative_info: dict[str, int]
 
     @property
@@ -114,21 +137,18 @@ class PlanResult:
             "target_yaw_rad": self.target_yaw_rad,
             **self.metrics.as_dict(),
             "final_object_position_m": self.trajectory.object_position_m[-1].tolist(),
-            "replay_object_position_m": self.replay.object_position_m[-1].tolist(),
+            "planned_object_position_m": self.planned.object_position_m[-1].tolist(),
+            "tracked_object_position_m": self.tracked.object_position_m[-1].tolist(),
             "warnings": self.trajectory.warnings,
             "derivatives": self.derivative_info,
+            "stages": [{"name": r.name, "status": r.status.value, "iterations": r.iterations, "seconds": r.seconds,
+                        "cost": r.cost, "position_error_m": r.position_error_m} for r in self.stages],
         }
 
     def finite(self) -> bool:
         """No NaN or Inf in any array or metric of the plan."""
         arrays = [self.knot_torques_Nm, self.knot_contact_control, *self.knot_variables.values()]
-        for trajectory in (self.trajectory, self.replay):
+        for trajectory in (self.trajectory, self.planned, self.tracked):
             arrays += [value for value in vars(trajectory).values() if isinstance(value, np.ndarray)]
         numbers = [v for _, v in self.metrics.items() if isinstance(v, float)]
         return all(bool(np.all(np.isfinite(a))) for a in arrays) and bool(np.all(np.isfinite(numbers)))
-
-    def with_totals(self, status: Status, solve_time_s: float, log: list[IterationLog]) -> "PlanResult":
-        """This plan reported with a whole solve's status, time and iteration log."""
-        metrics = dataclasses.replace(self.metrics, status=status, solve_time_s=solve_time_s,
-                                      iterations=log[-1].iteration if log else 0)
-        return dataclasses.replace(self, metrics=metrics, iteration_log=tuple(log))

@@ -22,6 +22,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from cito_ros.contact_models import CONTACT_MODELS
 from cito_ros.results import IterationLog, Metrics, PlanResult, Status
 from cito_ros.scene import ARM_JOINTS
+from cito_ros.settings import Settings
 
 Response = PlanPush.Response
 QUATERNION_MIN_NORM = 1e-6
@@ -98,7 +99,7 @@ def parse_start_state(state: JointState) -> np.ndarray | None:
     return q
 
 
-def response_status(result: PlanResult) -> tuple[int, str]:
+def response_status(result: PlanResult, settings: Settings) -> tuple[int, str]:
     """The service status and a message for a finished plan."""
     status = result.status
     if status is Status.CANCELLED:
@@ -108,10 +109,15 @@ def response_status(result: PlanResult) -> tuple[int, str]:
                                                 f"{result.trajectory.warnings}"
     if status is Status.SOLVER_FAILED:
         return Response.STATUS_SOLVER_FAILED, "IPOPT failed; the best iterate is returned"
-    error_cm = 100 * result.metrics.position_error_m
-    if result.metrics.success:
-        return Response.STATUS_SUCCEEDED, f"solver {status.value}; object ends {error_cm:.2f} cm from the target"
-    return Response.STATUS_TASK_NOT_ACHIEVED, f"solver {status.value}; object ends {error_cm:.2f} cm from the target"
+    m = result.metrics
+    ends = (f"executed without the virtual force, the object ends {100 * m.position_error_m:.2f} cm and "
+            f"{m.orientation_error_rad:.3f} rad from the goal (solver {status.value})")
+    if m.success:
+        return Response.STATUS_SUCCEEDED, ends
+    return Response.STATUS_TASK_NOT_ACHIEVED, (
+        f"task not achieved: {ends}; success needs {100 * settings.task.success_position_error_m:.1f} cm, "
+        f"{settings.task.success_orientation_error_rad:.2f} rad and joint speeds within "
+        f"{settings.limits.max_joint_speed_ratio:.2f} of their limits (reached {m.max_joint_speed_ratio:.2f})")
 
 
 def metrics_msg(metrics: Metrics) -> PlanMetrics:
@@ -151,7 +157,7 @@ def request_msg(inputs: PlanInputs, start_q: np.ndarray, request_id: int, stamp_
 
 def progress_msg(entry: IterationLog, request_id: int, contact_model: str, stamp_ns: int, frame_id: str) -> SolverProgress:
     return SolverProgress(header=Header(stamp=time_msg(stamp_ns), frame_id=frame_id), request_id=request_id,
-                          contact_model=contact_model, iteration=entry.iteration, cost=entry.cost,
+                          contact_model=contact_model, stage=entry.stage, iteration=entry.iteration, cost=entry.cost,
                           constraint_violation=entry.constraint_violation, elapsed_s=entry.elapsed_s)
 
 
@@ -168,7 +174,7 @@ class PlanMessages:
 
 
 def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: str, bag_path: str,
-                  target_orientation: np.ndarray) -> PlanMessages:
+                  target_orientation: np.ndarray, settings: Settings) -> PlanMessages:
     """Build the messages of a plan whose horizon starts at stamp_ns."""
     trajectory = result.trajectory
     header = Header(stamp=time_msg(stamp_ns), frame_id=frame_id)
@@ -198,13 +204,13 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
     poses = [PoseStamped(header=Header(stamp=time_msg(stamps[t]), frame_id=frame_id),
                          pose=pose_msg(trajectory.object_position_m[t], trajectory.object_quaternion[t]))
              for t in range(steps + 1)]
-    status, message = response_status(result)
+    status, message = response_status(result, settings)
     x, y, z, w = target_orientation
     result_msg = PlanResultMsg(
         header=header, request_id=request_id, status=status, message=message, contact_model=result.contact_model,
         target_pose=pose_msg(result.target_position_m, np.array([w, x, y, z])),
         final_object_pose=poses[-1].pose,
-        replay_object_pose=pose_msg(result.replay.object_position_m[-1], result.replay.object_quaternion[-1]),
+        planned_object_pose=pose_msg(result.planned.object_position_m[-1], result.planned.object_quaternion[-1]),
         metrics=metrics_msg(result.metrics), bag_path=bag_path)
     return PlanMessages(joint_trajectory, forces, poses, Path(header=header, poses=poses), result_msg, stamps[:steps])
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from mujoco import minimize
 
 from cito_ros import _native  # noqa: F401  (registers the cito.* engine plugins)
 from cito_ros.settings import SceneConfig
@@ -24,14 +25,17 @@ ARM_JOINTS = ("j0", "j1", "j2", "j3", "j4", "j5", "j6")
 ARM_MOTORS = ("m0", "m1", "m2", "m3", "m4", "m5", "m6")
 CONTACT_ACTUATOR = "virtual_contact"
 GAMMA_SENSOR = "gamma"
+PLATE_GAP_SENSOR = "plate_object_gap"
 ROBOT_CANDIDATE = "robot_candidate"
 OBJECT_CANDIDATE = "object_candidate"
 OBJECT_BODY = "object"
 OBJECT_GEOM = "object_geom"
 OBJECT_JOINT = "object_joint"
 TABLE_GEOM = "table"
+PLATE_GEOM = "plate"
 TABLE_TOP_GEOM = "table_top"
 TABLE_TOP_Z_M = 0.025
+VELOCITY_LIMIT = "velocity_limit"  # <numeric> of the arm's joint velocity limits (rad/s)
 SETTLE_TIME_S = 0.3  # time for the object to settle into its table contact (several contact time constants)
 
 
@@ -53,6 +57,9 @@ class SensorSlices:
     contact_torque: slice             # its torque about contact_position, world (N m), 3
     contact_position: slice           # force-weighted contact centroid, world (m), 3
     gamma: slice                      # virtual normal force (N), 1
+    joint_position: slice             # arm joint positions (rad), 7
+    joint_velocity: slice             # arm joint velocities (rad/s), 7
+    plate_gap: slice                  # distance between the plate and the object, negative in overlap (m), 1
 
 
 class Scene:
@@ -71,14 +78,16 @@ class Scene:
         self.arm_qpos_adr = np.array([j.qposadr[0] for j in joints])
         self.arm_dof_adr = np.array([j.dofadr[0] for j in joints])
         self.joint_range = np.array([j.range for j in joints])
+        self.velocity_limit = m.numeric(VELOCITY_LIMIT).data.copy()
         self.motor_ids = np.array([m.actuator(name).id for name in ARM_MOTORS])
         self.torque_limit = np.array([m.actuator(name).ctrlrange[1] for name in ARM_MOTORS])
         self.contact_actuator_id = m.actuator(CONTACT_ACTUATOR).id
         object_joint = m.joint(OBJECT_JOINT)
         self.object_qpos_adr = int(object_joint.qposadr[0])
         self.object_dof_adr = int(object_joint.dofadr[0])
-        # where the object's qpos sits in a mjSTATE_FULLPHYSICS state (time, then qpos)
+        # where the object's qpos and qvel sit in a mjSTATE_FULLPHYSICS state (time, qpos, qvel, ...)
         self._state_object_adr = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME) + self.object_qpos_adr
+        self._state_object_dof = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME) + m.nq + self.object_dof_adr
         self.robot_site_id = m.site(ROBOT_CANDIDATE).id
         self.object_site_id = m.site(OBJECT_CANDIDATE).id
         self.object_geom_id = m.geom(OBJECT_GEOM).id
@@ -181,16 +190,22 @@ class Scene:
             start = int(sensor.adr[0]) + offset
             return slice(start, start + (int(sensor.dim[0]) if size is None else size))
 
-        torque_start = int(m.sensor("tau_j0").adr[0])
+        def joints(prefix: str) -> slice:
+            start = int(m.sensor(f"{prefix}{ARM_JOINTS[0]}").adr[0])
+            return slice(start, start + len(ARM_JOINTS))
+
         return SensorSlices(
             robot_candidate_in_object=block("robot_candidate_in_object"),
             ee_velocity=block("ee_velocity"),
-            torque=slice(torque_start, torque_start + len(ARM_JOINTS)),
+            torque=joints("tau_"),
             contact_found=block("robot_object_contact", 0, 1),
             contact_force=block("robot_object_contact", 1, 3),
             contact_torque=block("robot_object_contact", 4, 3),
             contact_position=block("robot_object_contact", 7, 3),
             gamma=block(GAMMA_SENSOR),
+            joint_position=joints("q_"),
+            joint_velocity=joints("qdot_"),
+            plate_gap=block(PLATE_GAP_SENSOR),
         )
 
     # ------------------------------------------------------------------ states
@@ -262,6 +277,10 @@ class Scene:
         (..., nstate) states (a view)."""
         return state[..., self._state_object_adr:self._state_object_adr + 7]
 
+    def object_qvel(self, state: np.ndarray) -> np.ndarray:
+        """The object's velocity (linear world, angular local) in a state or (..., nstate) states (a view)."""
+        return state[..., self._state_object_dof:self._state_object_dof + 6]
+
     def object_pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Object position (m) and orientation quaternion (w, x, y, z), world frame."""
         qpos = data.qpos[self.object_qpos_adr:self.object_qpos_adr + 7]
@@ -270,6 +289,12 @@ class Scene:
     def initial_distance(self, beta: float) -> float:
         """Signed distance between the candidates at q0(beta) (the paper's phi_0)."""
         return self.signed_distance(self.data_at(start_configuration(beta)))
+
+    def push_reach_m(self) -> float:
+        """How far from the arm base (horizontally) the object's centre can be pushed: the farthest the
+        plate centre reaches within the height of the object's faces (at their top, the nearest to the
+        shoulder), plus the plate's radius and the object's half size (cached per model file and object)."""
+        return _push_reach(self.config.model, float(self.object_half_size[0]), self)
 
     def table_top(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(x, y) lower and upper corners of the table top and its height (m), world frame."""
@@ -292,3 +317,38 @@ class Scene:
         # rotate site_x by each quaternion: v + 2 w (u x v) + 2 u x (u x v)
         uv = np.cross(u, site_x)
         return -(site_x + 2 * w * uv + 2 * np.cross(u, uv))
+
+
+_REACH_CACHE: dict[tuple[str, float], float] = {}
+
+
+def _push_reach(model_file: str, half_size: float, scene: Scene) -> float:
+    key = (model_file, half_size)
+    if key not in _REACH_CACHE:
+        model, data = scene.model, mujoco.MjData(scene.model)
+        height = TABLE_TOP_Z_M + 2 * half_size
+        low, high = scene.joint_range.T
+
+        def residual(x: np.ndarray) -> np.ndarray:
+            out = np.empty((3, x.shape[1]))
+            for column, q in enumerate(x.T):
+                data.qpos[scene.arm_qpos_adr] = q
+                mujoco.mj_kinematics(model, data)
+                plate = data.site_xpos[scene.robot_site_id]
+                out[:, column] = [2.0 - plate[0], 10 * (plate[2] - height), 10 * plate[1]]
+            return out
+
+        reach = 0.0
+        # stretched forward with the elbow and wrist bent either way: the farthest is among them
+        for j3 in (0.0, 0.5, -0.5):
+            for j5 in (0.5, -0.5):
+                start = np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
+                q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
+                data.qpos[scene.arm_qpos_adr] = q
+                mujoco.mj_kinematics(model, data)
+                plate = data.site_xpos[scene.robot_site_id]
+                if abs(plate[2] - height) < 5e-3:
+                    reach = max(reach, float(np.hypot(plate[0], plate[1])))
+        plate_radius = float(model.geom_size[model.geom(PLATE_GEOM).id][0])
+        _REACH_CACHE[key] = reach + plate_radius + half_size
+    return _REACH_CACHE[key]

@@ -160,12 +160,15 @@ class ContactModelsSettings:
 @dataclass(frozen=True)
 class TaskSettings:
     push_distance_m: float = setting("default target: this far along world +x from the object's start")
-    success_position_error_m: float = setting("success: final position error below this (m)", positive=True)
+    success_position_error_m: float = setting("success: the executed plan ends this close to the goal (m)",
+                                              positive=True)
+    success_orientation_error_rad: float = setting("success: and this close in orientation (rad)", positive=True)
+    planned_success_position_error_m: float = setting("the paper's criterion on the planned error (m)",
+                                                      positive=True)
     position_error_scale_min_m: float = setting("floor of the position-cost normaliser ||p_0 - p*|| (m)",
                                                 positive=True)
     target_height_tolerance_m: float = setting("a target's z must be the object's resting height within this (m)",
                                                positive=True)
-    max_reach_m: float = setting("farthest object centre from the arm base the arm can push to (m)", positive=True)
 
 
 @dataclass(frozen=True)
@@ -200,24 +203,86 @@ class DerivativeSettings:
 
 
 @dataclass(frozen=True)
-class Continuation:
-    """Stages after the paper's solve that tighten the upper bound of one knot variable
-    (see cito_ros.stages)."""
-
-    variable: str = setting("the knot variable whose upper bound is tightened")
-    upper_bounds: tuple[float, ...] = setting("its upper bound in each stage", minimum=0.0)
-    trust_region: float = setting("box around the previous stage, times the variable scales", positive=True)
-    retries: int = setting("retries of a rejected stage, each with half the trust region", minimum=0)
-    accept_position_error_m: float = setting("a stage ending farther than this (or than the previous one) "
-                                             "is rejected", positive=True)
-    physical_inaccuracy_goal_Ns: float = setting("stop once the virtual impulse is this small", minimum=0.0)
+class HorizonSettings:
+    horizon_s: float = setting("planned horizon (s)", positive=True)
+    control_period_s: float = setting("t_c: one knot per control period (s)", positive=True)
 
 
 @dataclass(frozen=True)
-class ContinuationSettings:
-    cccm: Continuation | None = setting("CCCM continuation (none when absent)")
-    scm: Continuation | None = setting("SCM continuation (none when absent)")
-    vscm: Continuation | None = setting("VSCM continuation (none when absent)")
+class DiscoverySettings:
+    reach_weight: float = setting("weight of the plate-object gap, squared, from the start's fraction of the "
+                                  "horizon on", minimum=0.0)
+    max_iter: int = setting("solver iterations of the discovery", minimum=1)
+
+
+@dataclass(frozen=True)
+class PhysicalStage:
+    """One stage without the virtual force (see PhysicalStages)."""
+
+    contact_weight: float
+    joint_speed_weight: float
+    max_iter: int
+    only_if_too_fast: bool
+
+
+@dataclass(frozen=True)
+class PhysicalStages:
+    """The stages without the virtual force, one entry of each list per stage, in order."""
+
+    contact_weight: tuple[float, ...] = setting("weight of the plate-object gap, squared, from the touch-down on",
+                                                minimum=0.0)
+    joint_speed_weight: tuple[float, ...] = setting("weight of the joint speeds beyond their margin", minimum=0.0)
+    max_iter: tuple[int, ...] = setting("solver iterations of the stage", minimum=1)
+    only_if_too_fast: tuple[bool, ...] = setting("run only while the best plan so far is faster than the limits "
+                                                 "allow")
+
+    def check(self, path: str) -> None:
+        lengths = {len(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        if len(lengths) != 1 or 0 in lengths:
+            raise ValueError(f"{path} must list at least one stage, with one entry per stage in each of "
+                             f"{[f.name for f in dataclasses.fields(self)]}")
+
+    def __iter__(self):
+        return (PhysicalStage(*values) for values in zip(self.contact_weight, self.joint_speed_weight, self.max_iter,
+                                                           self.only_if_too_fast))
+
+
+@dataclass(frozen=True)
+class StagesSettings:
+    solver: str = setting("solver of the box-bounded stages (SCM, VSCM, physical)",
+                          choices=("ilqr", "least_squares", "ipopt"))
+    starts: tuple[float, ...] = setting("one discovery per entry, drawing the plate onto the object from this "
+                                        "fraction of the horizon on", minimum=0.0)
+    parallel: bool = setting("solve the starts side by side on threads")
+    discovery: DiscoverySettings = setting("the contact model's stage")
+    physical: PhysicalStages = setting("the stages without the virtual force")
+    touch_force_N: float = setting("a virtual force above this marks the discovery's touch-down", positive=True)
+
+    def check(self, path: str) -> None:
+        if not self.starts or any(start >= 1.0 for start in self.starts):
+            raise ValueError(f"{path}.starts must be one or more fractions of the horizon in [0, 1), "
+                             f"got {list(self.starts)}")
+
+
+@dataclass(frozen=True)
+class LimitSettings:
+    joint_speed_weight: float = setting("weight of (|qdot| / limit - margin)^2 beyond the margin", minimum=0.0)
+    joint_speed_margin: float = setting("fraction of the velocity limit where the speed term starts", positive=True)
+    max_joint_speed_ratio: float = setting("a plan faster than this fraction of a velocity limit is no success",
+                                           positive=True)
+    joint_position_weight: float = setting("weight of the joint positions beyond their margin", minimum=0.0)
+    joint_position_margin_rad: float = setting("margin inside each joint's range (rad)", minimum=0.0)
+    object_velocity_weight: float = setting("weight of the object's final velocity", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    kp: tuple[float, ...] = setting("PD position gains of the joint trajectory controller (N m/rad)", minimum=0.0)
+    kd: tuple[float, ...] = setting("PD velocity gains (N m s/rad)", minimum=0.0)
+
+    def check(self, path: str) -> None:
+        if len(self.kp) != 7 or len(self.kd) != 7:
+            raise ValueError(f"{path}.kp and {path}.kd must have one gain per arm joint (7)")
 
 
 @dataclass(frozen=True)
@@ -231,10 +296,22 @@ class SolverSettings:
     scale_variables: bool = setting("IPOPT sees z / scale (torque limits, k_max, gamma_max, slack_max)")
     ipopt: tuple[tuple[str, Any], ...] = setting("options passed to IPOPT as they are", convert=_options,
                                                  unconvert=dict)
+    least_squares: tuple[tuple[str, Any], ...] = setting("options passed to mujoco.minimize.least_squares as "
+                                                         "they are", convert=_options, unconvert=dict)
+    ilqr: tuple[tuple[str, Any], ...] = setting("iLQR: mu_initial, mu_min, mu_max, mu_factor, step_lengths, "
+                                                "accept_ratio, tolerance", convert=_options, unconvert=dict)
 
     @property
     def ipopt_options(self) -> dict[str, Any]:
         return dict(self.ipopt)
+
+    @property
+    def least_squares_options(self) -> dict[str, Any]:
+        return dict(self.least_squares)
+
+    @property
+    def ilqr_options(self) -> dict[str, Any]:
+        return dict(self.ilqr)
 
 
 @dataclass(frozen=True)
@@ -244,32 +321,37 @@ class Settings:
     node: NodeSettings = setting("cito_planner_node only")
     scene: SceneConfig = setting("scene in config/scenes", convert=_scene, unconvert=lambda scene: scene.source)
     beta: float = setting("start pose q0(beta) = [-pi/12, -pi/b, 0, 3pi/b, -pi/6, -2pi/b, 0]", positive=True)
-    horizon_s: float = setting("planned horizon (s)", positive=True)
+    pipeline: str = setting("physical: plans refined without the virtual force; paper: the paper's problem",
+                            choices=("physical", "paper"))
+    horizon_s: float = setting("planned horizon of the physical pipeline (s)", positive=True)
     control_period_s: float = setting("t_c: one knot per control period (s)", positive=True)
+    paper: HorizonSettings = setting("the paper's horizon and knots")
     contact_models: ContactModelsSettings = setting("contact model parameters")
     task: TaskSettings = setting("targets and success")
     weights: WeightsSettings = setting("cost weights per contact model")
     gradient: DerivativeSettings = setting("derivatives")
-    continuation: ContinuationSettings = setting("stages after the paper's solve, per contact model")
+    stages: StagesSettings = setting("the physical pipeline's stages")
+    limits: LimitSettings = setting("the arm's limits in the physical pipeline")
+    tracking: TrackingSettings = setting("the joint trajectory controller a plan is also executed with")
     solver: SolverSettings = setting("solver")
 
     def check(self, path: str) -> None:
-        knots = self.horizon_s / self.control_period_s
-        if abs(knots - round(knots)) > 1e-9 or round(knots) < 1:
-            raise ValueError(f"horizon_s {self.horizon_s} must be a positive whole number of control periods "
-                             f"control_period_s {self.control_period_s}")
-        steps = self.control_period_s / self.scene.timestep_s
-        if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
-            raise ValueError(f"control_period_s {self.control_period_s} must be a whole number of timesteps "
-                             f"{self.scene.timestep_s} (scene {self.scene.name})")
-        from cito_ros.contact_models import CONTACT_MODELS  # the models name their knot variables
+        for where, horizon in (("", self), ("paper.", self.paper)):
+            knots = horizon.horizon_s / horizon.control_period_s
+            if abs(knots - round(knots)) > 1e-9 or round(knots) < 1:
+                raise ValueError(f"{where}horizon_s {horizon.horizon_s} must be a positive whole number of control "
+                                 f"periods {where}control_period_s {horizon.control_period_s}")
+            steps = horizon.control_period_s / self.scene.timestep_s
+            if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+                raise ValueError(f"{where}control_period_s {horizon.control_period_s} must be a whole number of "
+                                 f"timesteps {self.scene.timestep_s} (scene {self.scene.name})")
 
-        for name in CONTACT_MODEL_NAMES:
-            stages = getattr(self.continuation, name)
-            variables = CONTACT_MODELS[name].variable_names
-            if stages is not None and stages.variable not in variables:
-                raise ValueError(f"continuation.{name}.variable {stages.variable!r} is not one of {name}'s knot "
-                                 f"variables {list(variables)}")
+    @property
+    def horizon(self) -> tuple[float, float]:
+        """(horizon_s, control_period_s) of the configured pipeline."""
+        if self.pipeline == "paper":
+            return self.paper.horizon_s, self.paper.control_period_s
+        return self.horizon_s, self.control_period_s
 
     @classmethod
     def from_mapping(cls, parameters: Mapping[str, Any]) -> "Settings":

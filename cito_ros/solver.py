@@ -81,8 +81,9 @@ class IterationMonitor:
 
     def __init__(self, settings: SolverSettings, started: float, iteration_offset: int,
                  violation_tolerance: float, cancel: threading.Event | None,
-                 callback: Callable[[IterationLog], None] | None):
+                 callback: Callable[[IterationLog], None] | None, stage: str = ""):
         self.settings, self.started, self.iteration_offset = settings, started, iteration_offset
+        self.stage = stage
         self.violation_tolerance = violation_tolerance
         self.cancel, self.callback = cancel, callback
         self.log: list[IterationLog] = []
@@ -91,7 +92,7 @@ class IterationMonitor:
     def record(self, iteration: int, cost: float, constraint_violation: float, last: NlpPoint | None,
                last_violation: float) -> Status | None:
         elapsed = time.perf_counter() - self.started
-        entry = IterationLog(self.iteration_offset + iteration, cost, constraint_violation, elapsed)
+        entry = IterationLog(self.iteration_offset + iteration, cost, constraint_violation, elapsed, self.stage)
         self.log.append(entry)
         if last is not None and last.finite:
             candidate = (max(last_violation - self.violation_tolerance, 0.0), last.cost, last.z)
@@ -120,9 +121,12 @@ class IterationMonitor:
         best_before, best_recent = min(earlier), min(e.cost for e in recent)
         return best_before - best_recent <= self.settings.stall_tolerance * max(1.0, abs(best_before))
 
-    def outcome(self, z: np.ndarray, status: Status) -> StageOutcome:
+    def outcome(self, z: np.ndarray, status: Status, final: NlpPoint | None = None,
+                final_violation: float = 0.0) -> StageOutcome:
         """The stage's result: z, or the best iterate seen (feasibility first, then cost) when the
-        solver did not stop on its own convergence test."""
-        if not status.finished and self.best is not None:
-            z = self.best[2]
+        solver did not stop on its own convergence test or when the best iterate beats z."""
+        if self.best is not None:
+            if not status.finished or final is None or not final.finite or \
+                    self.best[:2] < (max(final_violation - self.violation_tolerance, 0.0), final.cost):
+                z = self.best[2]
         return StageOutcome(z, status, self.log)

@@ -1,115 +1,255 @@
-"""The stages of a solve: the paper's problem from zero torques, restarts, then the continuation.
+"""The stages of a solve, for both pipelines. ROS-free and solver-agnostic: a stage is one
+`Solver.solve` of one problem from a start inside a box (cito_ros.solver).
 
-ROS-free and solver-agnostic: each stage is one `Solver.solve` over the same
-problem with its own start and box, and every stage's plan is evaluated; the
-plan returned is the best of all (task success first, then the replay error),
-reported with the whole solve's status, time and iteration log.
+Paper pipeline: exactly the paper's problem (section II.C), from zero torques, by IPOPT, with
+restarts: a solve that stops short of the task has usually stalled at a contact kink, where the
+gradient is no descent direction; IPOPT restarted from its last iterate (a fresh quasi-Newton model
+and barrier) leaves it.
 
-- Restarts: a solve that stops short of the task has usually stalled at a
-  contact kink, where the gradient is no descent direction. The solver
-  restarted from its last iterate (a fresh quasi-Newton model and barrier)
-  leaves the kink; each restart chains from the previous one.
-- Continuation (`Continuation` settings): stages that tighten the upper bound
-  of one knot variable, each warm-started from the previous one inside a trust
-  region (a box of `trust_region` times the variable scales around it), so the
-  solver follows the solution as the bound tightens instead of jumping to
-  another basin. For VSCM the variable is the stiffness: as k_max falls, the
-  virtual force weakens and shortens its reach, and the plan moves to pushing
-  through MuJoCo's real contact. A stage whose position error exceeds
-  max(accept_position_error_m, the previous one) is rejected and retried with
-  half the trust region, up to `retries` times; the stages stop once the
-  virtual impulse is below `physical_inaccuracy_goal_Ns`.
+Physical pipeline: the contact model discovers contact, the plan that leaves is refined without the
+virtual force. For each of `stages.starts` (solved side by side when `stages.parallel`):
+
+1. discovery: the contact model's problem from zero torques, plus the arm's limits and a reach
+   term, the plate-object gap squared from the start's fraction of the horizon on. The virtual force
+   alone pushes from centimetres away and never along the face (it acts at the face centre, along
+   its normal); the reach term brings the plate onto the object so that real contact pushes too.
+2. physical stages (`stages.physical`): the torques alone, the contact control held at 0 (the
+   dynamics the plan is executed with), from the previous stage's torques, with a contact term
+   that keeps the plate on the object from the discovery's touch-down to the end: a push, not a
+   strike, whose outcome depends smoothly on the torques. A stage marked only_if_too_fast runs
+   only while the best plan still exceeds the joint speed limits.
+
+Every stage's torques, executed without the virtual force, are a candidate; the plan returned is the
+best of all (within the joint speed limits first, then at the goal, then closest to it).
 """
 from __future__ import annotations
 
+import concurrent.futures
+import dataclasses
 import threading
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from cito_ros.problem import PushProblem
-from cito_ros.results import IterationLog, PlanResult, Status
-from cito_ros.settings import Continuation, SolverSettings
+from cito_ros.builder import PlanningProblem, PushRequest, build_problem
+from cito_ros.ilqr import IlqrSolver
+from cito_ros.ipopt import IpoptSolver
+from cito_ros.least_squares import LeastSquaresSolver
+from cito_ros.problem import PushProblem, StageCost
+from cito_ros.results import IterationLog, StageRecord, Status
+from cito_ros.settings import Settings
 from cito_ros.solver import IterationMonitor, Solver, StageOutcome
 
-#: evaluate(z, status, elapsed_s, log) -> the plan of decision vector z
-PlanEvaluator = Callable[[np.ndarray, Status, float, list[IterationLog]], PlanResult]
+SOLVERS = {"ilqr": IlqrSolver, "least_squares": LeastSquaresSolver, "ipopt": IpoptSolver}
 
 
-class _Run:
-    """One solve's clock, iteration log and stage runner."""
+@dataclass(frozen=True)
+class Outcome:
+    """What the stages leave for evaluation."""
 
-    def __init__(self, problem: PushProblem, solver: Solver, settings: SolverSettings, evaluate: PlanEvaluator,
-                 cancel: threading.Event | None, callback: Callable[[IterationLog], None] | None):
-        self.problem, self.solver, self.settings, self.evaluate = problem, solver, settings, evaluate
-        self.cancel, self.callback = cancel, callback
+    discovery: PushProblem        # the contact model's problem (with the virtual force)
+    planned_z: np.ndarray         # its solution: the plan with the virtual force
+    torques: np.ndarray           # (N, 7) the returned torques
+    executor: PushProblem         # a problem without the virtual force on the same simulator
+    status: Status
+    log: tuple[IterationLog, ...]
+    stages: tuple[StageRecord, ...]
+    solve_time_s: float
+
+
+@dataclass(frozen=True)
+class Executed:
+    """A candidate's torques executed without the virtual force."""
+
+    position_error_m: float
+    orientation_error_rad: float
+    max_joint_speed_ratio: float
+
+    def rank(self, settings: Settings) -> tuple:
+        task = settings.task
+        at_goal = (self.position_error_m < task.success_position_error_m
+                   and self.orientation_error_rad < task.success_orientation_error_rad)
+        return (self.max_joint_speed_ratio > settings.limits.max_joint_speed_ratio, not at_goal,
+                self.position_error_m / task.success_position_error_m
+                + self.orientation_error_rad / task.success_orientation_error_rad)
+
+
+def execute(executor: PushProblem, torques: np.ndarray) -> Executed:
+    """The executed errors and joint speed ratio of torques, by `executor` (no virtual force)."""
+    evaluation = executor.evaluate(executor.with_torques(torques))
+    position_error, angle_error = executor.task.pose_error(executor.scene.object_qpos(evaluation.states[-1]))
+    speeds = np.abs(evaluation.sensordata[:, executor.qdot_rows]) / executor.scene.velocity_limit
+    return Executed(float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error)),
+                    float(speeds.max()) if evaluation.finite else float("inf"))
+
+
+class _Clock:
+    """What the starts of one solve share: the clock, the settings, the callback and cancellation."""
+
+    def __init__(self, settings: Settings, callback: Callable[[IterationLog], None] | None,
+                 cancel: threading.Event | None):
+        self.settings, self.callback, self.cancel = settings, callback, cancel
         self.started = time.perf_counter()
-        self.log: list[IterationLog] = []
+        self._lock = threading.Lock()
 
-    def stage(self, start: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[StageOutcome, PlanResult]:
-        offset = self.log[-1].iteration + 1 if self.log else 0
-        monitor = IterationMonitor(self.settings, self.started, offset, self.solver.violation_tolerance,
-                                   self.cancel, self.callback)
-        outcome = self.solver.solve(self.problem, start, lower, upper, monitor)
-        self.log += outcome.log
-        return outcome, self.evaluate(outcome.z, outcome.status, self.elapsed(), self.log)
+    def report(self, entry: IterationLog) -> None:
+        if self.callback is not None:
+            with self._lock:
+                self.callback(entry)
 
     def elapsed(self) -> float:
         return time.perf_counter() - self.started
 
 
-def better(candidate: PlanResult, incumbent: PlanResult) -> bool:
-    a, b = candidate.metrics, incumbent.metrics
-    return (not a.success, a.replay_position_error_m) < (not b.success, b.replay_position_error_m)
+class _Run:
+    """The stages of one start: their log, records and candidates."""
+
+    def __init__(self, clock: _Clock, prefix: str):
+        self.clock, self.prefix = clock, prefix
+        self.log: list[IterationLog] = []
+        self.records: list[StageRecord] = []
+        self.interrupted: Status | None = None
+
+    def stage(self, problem: PushProblem, kind: str, start: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              name: str, max_iter: int, executor: PushProblem) -> tuple[StageOutcome, Executed]:
+        """Solve one stage with the solver `kind` (IPOPT whenever the problem has constraints)."""
+        # the stage's own budget, capped by solver.max_iter (the CLI's --max-iter)
+        settings = dataclasses.replace(self.clock.settings.solver,
+                                       max_iter=min(max_iter, self.clock.settings.solver.max_iter))
+        solver: Solver = IpoptSolver(settings) if problem.n_constraints else SOLVERS[kind](settings)
+        offset = self.log[-1].iteration + 1 if self.log else 0
+        began = time.perf_counter()
+        monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
+                                   self.clock.cancel, self.clock.report, f"{self.prefix}{name}")
+        outcome = solver.solve(problem, start, lower, upper, monitor)
+        self.log += outcome.log
+        executed = execute(executor, problem.split(outcome.z)[0])
+        iterations = outcome.log[-1].iteration - offset if outcome.log else 0  # the log starts at iteration 0
+        self.records.append(StageRecord(f"{self.prefix}{name}", outcome.status, iterations,
+                                        time.perf_counter() - began, float(problem.evaluate(outcome.z).cost),
+                                        executed.position_error_m))
+        if outcome.status.interrupted:
+            self.interrupted = outcome.status
+        return outcome, executed
 
 
-def optimize(problem: PushProblem, solver: Solver, settings: SolverSettings, continuation: Continuation | None,
-             evaluate: PlanEvaluator, *, iteration_callback: Callable[[IterationLog], None] | None = None,
-             cancel: threading.Event | None = None) -> PlanResult:
-    """Solve the paper's problem from zero torques, then the continuation stages; return the
-    plan, among all the stages solved, that is best (task success first, then the replay error)."""
-    run = _Run(problem, solver, settings, evaluate, cancel, iteration_callback)
-    stage, best = run.stage(problem.initial_guess, problem.lower, problem.upper)
-    for _ in range(settings.restarts):
-        if best.metrics.success or not stage.status.finished:
+# ------------------------------------------------------------------------------------------ paper
+
+def solve_paper(posed: PlanningProblem, settings: Settings, *,
+                iteration_callback: Callable[[IterationLog], None] | None = None,
+                cancel: threading.Event | None = None) -> Outcome:
+    """The paper's problem from zero torques by IPOPT, with restarts while it ends short of the task."""
+    clock = _Clock(settings, iteration_callback, cancel)
+    problem = posed.problem
+    executor = physical_twin(problem, StageCost.paper(problem.weights))
+    run = _Run(clock, "")
+    stage, executed = run.stage(problem, "ipopt", problem.initial_guess, problem.lower, problem.upper, "paper",
+                                settings.solver.max_iter, executor)
+    best, best_error = stage, planned_error(problem, stage.z)
+    for index in range(settings.solver.restarts):
+        if best_error < settings.task.planned_success_position_error_m or not stage.status.finished:
             break
-        stage, result = run.stage(stage.z, problem.lower, problem.upper)
-        if better(result, best):
-            best = result
-    latest = best
-    if continuation is not None:
-        stage, latest, best = _continue(run, continuation, stage, latest, best)
-    status = latest.status if latest.status.interrupted else best.status
-    return best.with_totals(status, run.elapsed(), run.log)
+        stage, _ = run.stage(problem, "ipopt", stage.z, problem.lower, problem.upper, f"restart {index + 1}",
+                             settings.solver.max_iter, executor)
+        if planned_error(problem, stage.z) < best_error:
+            best, best_error = stage, planned_error(problem, stage.z)
+    status = run.interrupted or best.status
+    return Outcome(problem, best.z, problem.split(best.z)[0], executor, status, tuple(run.log), tuple(run.records),
+                   clock.elapsed())
 
 
-def _continue(run: _Run, continuation: Continuation, stage: StageOutcome, latest: PlanResult,
-              best: PlanResult) -> tuple[StageOutcome, PlanResult, PlanResult]:
-    problem = run.problem
-    column = problem.variable_column(continuation.variable)
-    for bound in continuation.upper_bounds:
-        if latest.metrics.physical_inaccuracy_Ns <= continuation.physical_inaccuracy_goal_Ns \
-                or stage.status.interrupted:
+def planned_error(problem: PushProblem, z: np.ndarray) -> float:
+    evaluation = problem.evaluate(z)
+    if not evaluation.finite:
+        return float("inf")
+    return float(np.linalg.norm(problem.task.pose_error(problem.scene.object_qpos(evaluation.states[-1]))[0]))
+
+
+def physical_twin(problem: PushProblem, cost: StageCost) -> PushProblem:
+    """The same push on the same simulator without the virtual force, under `cost`."""
+    return PushProblem(problem.simulator, problem.initial_state, problem.task,
+                       dataclasses.replace(cost, virtual_force=False), problem.derivative_settings,
+                       problem.position_scale_min_m)
+
+
+# ------------------------------------------------------------------------------------- physical
+
+def solve_physical(settings: Settings, request: PushRequest, *,
+                   iteration_callback: Callable[[IterationLog], None] | None = None,
+                   cancel: threading.Event | None = None) -> Outcome:
+    """Every start's discovery and physical stages; the best executed plan of all."""
+    clock = _Clock(settings, iteration_callback, cancel)
+    starts = settings.stages.starts
+    parallel = settings.stages.parallel and len(starts) > 1
+    per_start = settings.with_overrides({"gradient.threads": 1}) if parallel else settings
+    jobs = [(per_start, request, fraction, f"start {i + 1}: " if len(starts) > 1 else "")
+            for i, fraction in enumerate(starts)]
+    if parallel:
+        with concurrent.futures.ThreadPoolExecutor(len(jobs), thread_name_prefix="cito_start") as pool:
+            results = list(pool.map(lambda job: _solve_start(clock, *job), jobs))
+    else:
+        results = [_solve_start(clock, *job) for job in jobs]
+    best = min(results, key=lambda result: result[0])
+    _, outcome = best
+    log = tuple(entry for _, result in results for entry in result.log)
+    records = tuple(record for _, result in results for record in result.stages)
+    interrupted = next((result.status for _, result in results if result.status.interrupted), None)
+    return dataclasses.replace(outcome, log=log, stages=records, status=interrupted or outcome.status,
+                               solve_time_s=clock.elapsed())
+
+
+def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fraction: float, prefix: str):
+    posed = build_problem(settings, request)
+    base, limits = posed.problem, settings.limits
+    T = base.n_steps
+    reach = np.where(np.arange(T) >= int(fraction * T), 1.0 / T, 0.0)
+    discovery = PushProblem(base.simulator, base.initial_state, base.task,
+                            stage_cost(settings, base.weights, True, settings.stages.discovery.reach_weight, reach,
+                                       limits.joint_speed_weight),
+                            base.derivative_settings, base.position_scale_min_m)
+    executor = physical_twin(discovery, discovery.cost)
+    run = _Run(clock, prefix)
+    stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
+                                discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
+    planned_z = stage.z
+    best = (executed.rank(settings), discovery.split(stage.z)[0], stage.status)
+    touch = touch_profile(discovery, planned_z, settings.stages.touch_force_N)
+    torques = best[1]
+    for index, spec in enumerate(settings.stages.physical):
+        if run.interrupted:
             break
-        accept_error = max(continuation.accept_position_error_m, latest.metrics.position_error_m)
-        radius = continuation.trust_region
-        accepted = False
-        for _ in range(continuation.retries + 1):
-            upper = problem.upper.copy()
-            upper[column::problem.width] = np.minimum(upper[column::problem.width], bound)
-            lower = np.maximum(problem.lower, stage.z - radius * problem.scale)
-            upper = np.maximum(np.minimum(upper, stage.z + radius * problem.scale), lower)
-            attempt, result = run.stage(np.clip(stage.z, lower, upper), lower, upper)
-            if better(result, best):
-                best = result
-            if attempt.status.interrupted:
-                latest = result
-                break
-            if result.metrics.position_error_m <= accept_error:
-                stage, latest, accepted = attempt, result, True
-                break
-            radius /= 2
-        if not accepted:
-            break
-    return stage, latest, best
+        if spec.only_if_too_fast and not best[0][0]:
+            continue
+        problem = physical_twin(discovery, stage_cost(settings, base.weights, False, spec.contact_weight, touch,
+                                                      spec.joint_speed_weight))
+        stage, executed = run.stage(problem, settings.stages.solver, problem.with_torques(torques),
+                                    problem.lower, problem.upper, f"physical {index + 1}", spec.max_iter, executor)
+        torques = problem.split(stage.z)[0]
+        if executed.rank(settings) < best[0]:
+            best = (executed.rank(settings), torques, stage.status)
+    rank, chosen, status = best
+    return rank, Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
+                         tuple(run.records), clock.elapsed())
+
+
+def stage_cost(settings: Settings, weights, virtual_force: bool, contact_weight: float,
+               contact_profile: np.ndarray | None, joint_speed_weight: float) -> StageCost:
+    limits = settings.limits
+    return StageCost(weights, virtual_force, joint_speed_weight, limits.joint_speed_margin,
+                     limits.joint_position_weight, limits.joint_position_margin_rad,
+                     0.0 if virtual_force else limits.object_velocity_weight, contact_weight, contact_profile)
+
+
+def touch_profile(discovery: PushProblem, z: np.ndarray, touch_force_N: float) -> np.ndarray:
+    """Step weights 1/T from the discovery plan's first touch (real contact or a virtual force above
+    touch_force_N) to the end; from mid-horizon when it never touches."""
+    evaluation = discovery.evaluate(z)
+    sensors = discovery.scene.sensors
+    touching = (evaluation.sensordata[:, discovery.gamma_row] > touch_force_N) | \
+        (evaluation.sensordata[:, sensors.contact_found.start] > 0)
+    steps = np.nonzero(touching)[0]
+    T = discovery.n_steps
+    first = int(steps[0]) if steps.size else T // 2
+    return np.where(np.arange(T) >= first, 1.0 / T, 0.0)

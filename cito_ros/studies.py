@@ -75,7 +75,7 @@ def hard_report(records: list[dict[str, Any]]) -> str:
     models = list(dict.fromkeys(r["contact_model"] for r in records))
     cases = list(dict.fromkeys(r["case"] for r in records))
     by = {(r["case"], r["contact_model"]): r for r in records}
-    lines = ["### Per case: status, position error / replay error (cm), solve time (s)", "",
+    lines = ["### Per case: status (success), executed error / planned error (cm), solve time (s)", "",
              "| case | " + " | ".join(m.upper() for m in models) + " |", "|---|" + "---|" * len(models)]
     for case in cases:
         cells = []
@@ -86,10 +86,10 @@ def hard_report(records: list[dict[str, Any]]) -> str:
                 continue
             mark = "ok" if r["success"] else "fail"
             cells.append(f"{r['status']} ({mark}) {_fmt(r['position_error_m'], 100, 1)} / "
-                         f"{_fmt(r['replay_position_error_m'], 100, 1)}, {r['solve_time_s']:.1f}")
+                         f"{_fmt(r['planned_position_error_m'], 100, 1)}, {r['solve_time_s']:.1f}")
         lines.append(f"| {case} | " + " | ".join(cells) + " |")
     lines += ["", "### Per contact model", "",
-              "| model | success | median position error (cm) | median replay error (cm) | median solve time (s) "
+              "| model | success | median executed error (cm) | median planned error (cm) | median solve time (s) "
               "| all finite | MuJoCo warnings | identical on repeat |", "|---|---|---|---|---|---|---|---|"]
     for model in models:
         rows = [r for r in records if r["contact_model"] == model]
@@ -99,7 +99,7 @@ def hard_report(records: list[dict[str, Any]]) -> str:
         lines.append(
             f"| {model.upper()} | {sum(r['success'] for r in rows)}/{len(rows)} | "
             f"{_fmt(_median(r['position_error_m'] for r in posed), 100)} | "
-            f"{_fmt(_median(r['replay_position_error_m'] for r in posed), 100)} | "
+            f"{_fmt(_median(r['planned_position_error_m'] for r in posed), 100)} | "
             f"{_fmt(_median(r['solve_time_s'] for r in posed))} | "
             f"{'yes' if all(r['finite'] for r in rows) else 'NO'} | {warned} | "
             f"{('yes' if all(repeats) else 'NO') if repeats else 'not run'} |")
@@ -119,22 +119,21 @@ class Variant:
     name: str
     overrides: Mapping[str, Any]
     scene: str | None = None
-    control_period_s: float | None = None
+    knots: int | None = None
     models: tuple[str, ...] = MODELS
 
 
 VARIANTS = (
     Variant("default", {}),
-    Variant("max_iter 10", {"solver.max_iter": 10, "solver.restarts": 0}),
-    Variant("max_iter 30", {"solver.max_iter": 30}),
-    Variant("loose tolerance", {"solver.ipopt.acceptable_obj_change_tol": 1e-2, "solver.stall_tolerance": 1e-3,
-                                "solver.stall_iterations": 3}),
-    Variant("no restarts", {"solver.restarts": 0}),
-    Variant("no continuation", {"continuation.vscm": None}, models=("vscm",)),
+    Variant("max_iter 10", {"solver.max_iter": 10, "stages.discovery.max_iter": 10}),
+    Variant("one start", {"stages.starts": [0.3]}),
+    Variant("least squares", {"stages.solver": "least_squares"}),
+    Variant("ipopt", {"stages.solver": "ipopt"}),
+    Variant("paper problem", {"pipeline": "paper"}),
     Variant("forward differences", {"gradient.method": "forward_differences"}),
     Variant("timestep 2 ms", {}, scene="fine_step"),
-    Variant("N = 10", {}, control_period_s=0.1),
-    Variant("N = 40", {}, control_period_s=0.025),
+    Variant("N = 10", {}, knots=10),
+    Variant("N = 40", {}, knots=40),
 )
 SWEEP_CASES = (
     Case("paper beta=5", beta=5.0), Case("paper beta=6", beta=6.0), Case("paper beta=7", beta=7.0),
@@ -151,8 +150,7 @@ def speed_vs_error(variants: Iterable[Variant] = VARIANTS, cases: Iterable[Case]
     for index, (variant, case, model) in enumerate(runs):
         if progress:
             progress(index, f"{variant.name}: {model} {case.name}")
-        run = replace(case, scene=variant.scene or case.scene,
-                      control_period_s=variant.control_period_s or case.control_period_s)
+        run = replace(case, scene=variant.scene or case.scene, knots=variant.knots or case.knots)
         record, _ = run_case(run, model, settings.with_overrides(variant.overrides))
         records.append({"variant": variant.name, **record})
     if progress:
@@ -162,19 +160,19 @@ def speed_vs_error(variants: Iterable[Variant] = VARIANTS, cases: Iterable[Case]
 
 def speed_vs_error_summary(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (contact model, variant): medians over the cases, and whether it is on the model's
-    Pareto front of (median solve time, median position error)."""
+    Pareto front of (median solve time, median executed error) and of (time, median planned error)."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in records:
         groups.setdefault((r["contact_model"], r["variant"]), []).append(r)
     rows = [{"contact_model": model, "variant": variant,
              "median_solve_time_s": _median(r["solve_time_s"] for r in rs),
+             "median_planned_position_error_m": _median(r["planned_position_error_m"] for r in rs),
              "median_position_error_m": _median(r["position_error_m"] for r in rs),
-             "median_replay_position_error_m": _median(r["replay_position_error_m"] for r in rs),
              "success_rate": sum(r["success"] for r in rs) / len(rs), "cases": len(rs)}
             for (model, variant), rs in groups.items()]
     for row in rows:
         peers = [p for p in rows if p["contact_model"] == row["contact_model"]]
-        for error, flag in (("median_position_error_m", "pareto"), ("median_replay_position_error_m", "pareto_replay")):
+        for error, flag in (("median_position_error_m", "pareto"), ("median_planned_position_error_m", "pareto_planned")):
             row[flag] = row[error] is not None and not any(
                 p is not row and p[error] is not None
                 and p["median_solve_time_s"] <= row["median_solve_time_s"] and p[error] <= row[error]
@@ -183,12 +181,12 @@ def speed_vs_error_summary(records: list[dict[str, Any]]) -> list[dict[str, Any]
 
 
 def speed_vs_error_table(summary: list[dict[str, Any]]) -> str:
-    lines = ["| contact model | setting | median solve time (s) | median position error (cm) | "
-             "median replay error (cm) | success | Pareto (position / replay) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| contact model | setting | median solve time (s) | median executed error (cm) | "
+             "median planned error (cm) | success | Pareto (executed / planned) |", "|---|---|---|---|---|---|---|"]
     for row in sorted(summary, key=lambda r: (r["contact_model"], r["median_solve_time_s"])):
-        front = " / ".join("*" if row[flag] else "-" for flag in ("pareto", "pareto_replay"))
+        front = " / ".join("*" if row[flag] else "-" for flag in ("pareto", "pareto_planned"))
         lines.append(f"| {row['contact_model'].upper()} | {row['variant']} | {_fmt(row['median_solve_time_s'])} | "
-                     f"{_fmt(row['median_position_error_m'], 100)} | {_fmt(row['median_replay_position_error_m'], 100)} "
+                     f"{_fmt(row['median_position_error_m'], 100)} | {_fmt(row['median_planned_position_error_m'], 100)} "
                      f"| {row['success_rate']:.0%} | {front} |")
     return "\n".join(lines) + "\n"
 
@@ -201,9 +199,10 @@ def speed_vs_error_plot(summary: list[dict[str, Any]], path: Path) -> Path:
 
     colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
     figure, axes = plt.subplots(1, 2, figsize=(13, 5.2), sharex=True)
-    for axis, key, flag, title in ((axes[0], "median_position_error_m", "pareto", "final position error"),
-                                   (axes[1], "median_replay_position_error_m", "pareto_replay",
-                                    "replay error (virtual force off)")):
+    for axis, key, flag, title in ((axes[0], "median_position_error_m", "pareto",
+                                    "executed error (virtual force off)"),
+                                   (axes[1], "median_planned_position_error_m", "pareto_planned",
+                                    "planned error (virtual force on)")):
         for model in MODELS:
             rows = sorted((r for r in summary if r["contact_model"] == model and r[key] is not None),
                           key=lambda r: r["median_solve_time_s"])
@@ -273,8 +272,8 @@ def collision_cost(repeats: int = 50, progress: Progress | None = None) -> dict[
         rows = [r for r in records if r["scene"] == scene_name]
         timing[label].update(
             median_solve_time_s=_median(r["solve_time_s"] for r in rows),
+            median_planned_position_error_m=_median(r["planned_position_error_m"] for r in rows),
             median_position_error_m=_median(r["position_error_m"] for r in rows),
-            median_replay_position_error_m=_median(r["replay_position_error_m"] for r in rows),
             successes=sum(r["success"] for r in rows), cases=len(rows))
     return {"scenes": timing, "runs": records}
 
@@ -288,8 +287,8 @@ def collision_report(result: dict[str, Any]) -> str:
                               ("rollout_ms", "1 s rollout (ms, median)", 1),
                               ("gradient_ms", "full VSCM gradient (ms, median)", 1),
                               ("median_solve_time_s", "median solve time, 9 paper cases (s)", 1),
-                              ("median_position_error_m", "median position error (cm)", 100),
-                              ("median_replay_position_error_m", "median replay error (cm)", 100)):
+                              ("median_position_error_m", "median executed error (cm)", 100),
+                              ("median_planned_position_error_m", "median planned error (cm)", 100)):
         a, b = minimal[key], full[key]
         ratio = f"{b / a:.2f}" if isinstance(a, (int, float)) and a and b is not None else "-"
         lines.append(f"| {label} | {_fmt(a, scale)} | {_fmt(b, scale)} | {ratio} |")

@@ -7,6 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from cito_ros.planner import plan_push
+from cito_ros.results import METRIC_NAMES
+
 BIN = Path(sys.executable).parent
 
 
@@ -29,21 +32,31 @@ def test_scene_info_rejects_a_bad_beta():
     assert result.returncode == 2 and "beta must be positive" in result.stderr
 
 
-def test_plan_json():
-    result = run("cito-plan", "--contact-model", "scm", "--beta", "7", "--json")
+def test_plan_json_is_the_library_plan(settings):
+    """cito-plan and plan_push give the same plan for the same problem, to the last bit."""
+    result = run("cito-plan", "--contact-model", "scm", "--beta", "7", "--target", "1.15", "0.03", "0.1", "--json")
     assert result.returncode == 0, result.stderr
     plan = json.loads(result.stdout)
-    for key in ("position_error_m", "orientation_error_rad", "physical_inaccuracy_Ns", "replay_position_error_m",
-                "solve_time_s", "iterations", "status", "success", "contact_model", "beta", "initial_distance_m"):
+    for key in (*METRIC_NAMES, "contact_model", "beta", "initial_distance_m", "final_object_position_m"):
         assert key in plan, key
-    assert plan["contact_model"] == "scm" and plan["success"] is True
+    library = plan_push("scm", 7, target_position_m=[1.15, 0.03], target_yaw_rad=0.1, settings=settings).summary()
+    for key in ("position_error_m", "orientation_error_rad", "planned_position_error_m", "final_object_position_m",
+                "max_joint_speed_ratio", "iterations", "success"):
+        assert plan[key] == library[key], key
+
+
+def test_plan_json_for_a_refused_request():
+    result = run("cito-plan", "--target", "1.9", "0", "0", "--json")
+    assert result.returncode == 2
+    refused = json.loads(result.stdout)
+    assert refused["status"] == "invalid_request" and "off the table" in refused["message"]
 
 
 def test_plan_human_readable_with_target():
     result = run("cito-plan", "--contact-model", "scm", "--beta", "7", "--target", "1.2", "0.05", "0.0",
                  "--max-iter", "5")
     assert result.returncode == 0, result.stderr
-    assert "position error" in result.stdout and "replay error" in result.stdout
+    assert "executed error" in result.stdout and "planned error" in result.stdout
     assert "solving, iteration" in result.stderr  # the progress display
 
 
@@ -76,7 +89,7 @@ def test_bench_hard_json(tmp_path):
     records = json.loads(result.stdout)
     assert [(r["case"], r["contact_model"]) for r in records] == [("target_reached", "scm"), ("target_off_table", "scm")]
     for record in records:
-        for key in ("case", "contact_model", "status", "success", "position_error_m", "replay_position_error_m",
+        for key in ("case", "contact_model", "status", "success", "position_error_m", "planned_position_error_m",
                     "solve_time_s"):
             assert key in record
     assert records[1]["status"] == "invalid_request"

@@ -6,13 +6,14 @@ import pytest
 
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.derivatives import adjoint
-from cito_ros.problem import PushProblem
+from cito_ros.problem import PushProblem, StageCost
 from cito_ros.task import PushTask
 
 
 def make_problem(settings, name, beta=7, **overrides):
-    """The default push from q0(beta) with a 0.1 rad yaw goal, under settings with dotted overrides."""
-    settings = settings.with_overrides(overrides)
+    """The paper's push (its 1 s horizon) from q0(beta) with a 0.1 rad yaw goal, under settings with
+    dotted overrides."""
+    settings = settings.with_overrides({"pipeline": "paper", **overrides})
     x, y = settings.scene.object.position_m
     return build_problem(settings, PushRequest(name, beta, target_position_m=[x + 0.25, y],
                                                target_yaw_rad=0.1)).problem
@@ -87,7 +88,7 @@ def test_contact_switch_is_detected_and_the_knot_falls_back(simulators, settings
     task = PushTask(scene.object_qpos(state)[:3] + [0.25, 0, 0])
 
     def problem_with(derivative_settings):
-        return PushProblem(simulator, state, task, settings.weights.vscm, derivative_settings,
+        return PushProblem(simulator, state, task, StageCost.paper(settings.weights.vscm), derivative_settings,
                            settings.task.position_error_scale_min_m)
 
     problem = problem_with(settings.gradient)
@@ -99,6 +100,40 @@ def test_contact_switch_is_detected_and_the_knot_falls_back(simulators, settings
     fallback = problem_with(settings.with_overrides({"gradient.method": "forward_differences"}).gradient)
     knots = info["restarted_knots"] * problem.width
     np.testing.assert_allclose(evaluation.gradient[:knots], fallback.derivatives(z).gradient[:knots], rtol=1e-12)
+
+
+def every_term(settings, name, virtual_force):
+    """The beta = 7 push with every stage-cost term active: limits with tight margins, the object's final
+    velocity, and the contact term over the second half of the horizon."""
+    base = make_problem(settings, name)
+    profile = np.where(np.arange(base.n_steps) >= base.n_steps // 2, 1.0 / base.n_steps, 0.0)
+    cost = StageCost(base.weights, virtual_force, joint_speed=100.0, joint_speed_margin=0.05, joint_position=100.0,
+                     joint_position_margin_rad=2.0, object_velocity=10.0, contact=50.0, contact_profile=profile)
+    return PushProblem(base.simulator, base.initial_state, base.task, cost, settings.gradient,
+                       settings.task.position_error_scale_min_m)
+
+
+@pytest.mark.parametrize("name, virtual_force", [("cccm", True), ("vscm", True), ("vscm", False)])
+def test_residual_jacobian_matches_differences_and_the_gradient(settings, name, virtual_force):
+    problem = every_term(settings, name, virtual_force)
+    z = interior_point(problem, seed=11, spread=0.3)
+    evaluation = problem.evaluate(z)
+    assert evaluation.cost == pytest.approx(evaluation.residuals @ evaluation.residuals, rel=1e-12)
+    running, _ = problem._running_residuals(evaluation.sensordata)
+    first = 4 if virtual_force else 3  # columns: ee velocity (3), [gamma], 7 speeds, 7 positions, contact
+    active = np.abs(running).max(axis=0) > 0
+    assert active[first:first + 7].any() and active[first + 7:first + 14].any() and active[-1], active
+    jacobian = problem.residual_jacobian(z).copy()
+    gradient = problem.gradient(z)
+    np.testing.assert_allclose(2 * jacobian.T @ evaluation.residuals, gradient,
+                               atol=1e-9 * np.abs(gradient).max())
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        direction = rng.normal(size=problem.size) * problem.scale
+        direction /= np.linalg.norm(direction / problem.scale)
+        h = 1e-6
+        fd = (problem.residuals(z + h * direction) - problem.residuals(z - h * direction)) / (2 * h)
+        np.testing.assert_allclose(jacobian @ direction, fd, rtol=2e-3, atol=2e-3 * np.abs(fd).max())
 
 
 def test_the_adjoint_pass_is_the_derivative_of_a_linear_system():

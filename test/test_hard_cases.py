@@ -9,6 +9,7 @@ from cito_ros.builder import PushRequest, build_problem
 from cito_ros.cases import load_cases, run_case
 from cito_ros.planner import evaluate_plan
 from cito_ros.results import Status
+from cito_ros.stages import Outcome, physical_twin
 
 CASES = load_cases()
 STATUSES = {s.value for s in Status} | {"invalid_request"}
@@ -22,7 +23,8 @@ def check_record(record, result):
     assert record["finite"]
     if result is not None:
         assert result.finite()
-        for key in ("position_error_m", "replay_position_error_m", "solve_time_s", "physical_inaccuracy_Ns"):
+        for key in ("position_error_m", "planned_position_error_m", "tracked_position_error_m", "solve_time_s",
+                    "physical_inaccuracy_Ns"):
             assert math.isfinite(record[key]), key
         if record["warnings"]:
             assert record["status"] == Status.NUMERICAL_ERROR.value
@@ -67,15 +69,17 @@ def test_mujoco_warnings_are_reported_as_a_status(tmp_path, settings):
     """A 1 ug cube hit by 100 N accelerates past MuJoCo's limit (1e10): the rollout reports the
     warning and a plan with it gets the numerical_error status, not garbage."""
     path = tmp_path / "feather.yaml"
-    path.write_text("object: {half_size_m: 0.075, mass_kg: 1.0e-9, position_m: [0.99, 0.0], friction: 0.5}\n")
+    path.write_text("object: {mass_kg: 1.0e-9}\n")
+    settings = settings.with_overrides({"pipeline": "paper"})
     posed = build_problem(settings, PushRequest("cccm", 7, target_position_m=[1.24, 0.0], scene=str(path)))
     problem = posed.problem
     trajectory = posed.simulator.rollout(posed.initial_state, np.zeros((20, 7)), np.full(20, 100.0))
     assert "mjWARN_BADQACC" in trajectory.warnings
     z = problem.initial_guess.copy().reshape(20, 9)
     z[:, 7] = 100.0
-    result = evaluate_plan(problem, z.ravel(), Status.CONVERGED, 0.0, [], beta=7.0, initial_distance_m=0.11,
-                           success_position_error_m=0.1)
+    outcome = Outcome(problem, z.ravel(), np.zeros((20, 7)), physical_twin(problem, problem.cost), Status.CONVERGED,
+                      (), (), 0.0)
+    result = evaluate_plan(outcome, posed, settings)
     assert result.status is Status.NUMERICAL_ERROR and not result.metrics.success
 
 

@@ -26,6 +26,9 @@ from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 from trajectory_msgs.msg import JointTrajectory
 
+from cito_ros.planner import plan_push
+from cito_ros.settings import load_settings
+
 NODE = str(Path(sys.executable).parent / "cito-planner-node")
 Q0_BETA_7 = [-math.pi / 12, -math.pi / 7, 0.0, 3 * math.pi / 7, -math.pi / 6, -2 * math.pi / 7, 0.0]
 JOINTS = ["j0", "j1", "j2", "j3", "j4", "j5", "j6"]
@@ -35,6 +38,7 @@ TOPICS = {
     "/cito/plan_result": PlanResult,
 }
 LATCHED = {"/cito/joint_trajectory", "/cito/object_path", "/cito/plan_result"}
+STEPS = round(load_settings().horizon[0] / load_settings().scene.timestep_s)  # simulation steps of a plan
 
 
 def start_node(domain: int, bag_directory: Path, *extra: str) -> subprocess.Popen:
@@ -92,7 +96,7 @@ class Client:
         rclpy.shutdown(context=self.context)
 
 
-def request(model: str = "scm", x: float = 1.24, y: float = 0.0, z: float = 0.1, q=(0.0, 0.0, 0.0, 1.0),
+def request(model: str = "scm", x: float = 1.09, y: float = 0.0, z: float = 0.1, q=(0.0, 0.0, 0.0, 1.0),
             start=Q0_BETA_7, names=JOINTS, time_limit: float = 0.0) -> PlanPush.Request:
     r = PlanPush.Request()
     r.target_pose.position.x, r.target_pose.position.y, r.target_pose.position.z = x, y, z
@@ -149,10 +153,19 @@ def test_a_plan_for_each_contact_model(plans, model):
     assert response.success, response.message
     assert response.status == PlanPush.Response.STATUS_SUCCEEDED
     m = response.metrics
-    assert m.position_error_m < 0.10 and m.iterations > 0 and m.solve_time_s > 0 and m.success
-    assert len(response.trajectory.points) == 201 and len(response.contact_forces) == 200
+    assert m.success and m.position_error_m < 0.02 and m.iterations > 0 and m.solve_time_s > 0
+    assert m.max_joint_speed_ratio <= 1.05
+    assert len(response.trajectory.points) == STEPS + 1 and len(response.contact_forces) == STEPS
     assert response.trajectory.joint_names == JOINTS
     assert Path(response.bag_path, "metadata.yaml").is_file()
+
+
+def test_the_service_plan_is_the_library_plan(plans):
+    """The node plans exactly what plan_push plans for the same problem, to the last bit."""
+    response, _ = plans["scm"]
+    library = plan_push("scm", start_q=np.array(Q0_BETA_7), target_position_m=np.array([1.09, 0.0, 0.1]))
+    assert [list(p.positions) for p in response.trajectory.points] == library.trajectory.q.tolist()
+    assert response.metrics.position_error_m == library.metrics.position_error_m
 
 
 @pytest.mark.parametrize("model", ["cccm", "vscm"])
@@ -160,15 +173,15 @@ def test_every_topic_is_received(plans, model):
     response, received = plans[model]
     assert len(received["/cito/plan_request"]) == 1 and received["/cito/plan_request"][0].contact_model == model
     assert len(received["/cito/progress"]) >= 1
-    assert len(received["/cito/contact_forces"]) == 200 and len(received["/cito/object_pose"]) == 201
+    assert len(received["/cito/contact_forces"]) == STEPS and len(received["/cito/object_pose"]) == STEPS + 1
     assert received["/cito/joint_trajectory"][-1].points[-1].positions.tolist() == \
         response.trajectory.points[-1].positions.tolist()
-    assert len(received["/cito/object_path"][-1].poses) == 201
+    assert len(received["/cito/object_path"][-1].poses) == STEPS + 1
     result = received["/cito/plan_result"][-1]
     assert result.metrics == response.metrics and result.bag_path == response.bag_path
     assert result.header.frame_id == "world"
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in received["/cito/contact_forces"]]
-    assert stamps == sorted(stamps) and stamps[-1] - stamps[0] == pytest.approx(0.995e9, abs=2e6)
+    assert stamps == sorted(stamps) and stamps[-1] - stamps[0] == pytest.approx((STEPS - 1) * 5e6, abs=2e6)
 
 
 def test_late_subscriber_gets_the_last_plan(plans, domain):
@@ -224,7 +237,7 @@ def test_the_bag_matches_the_response(plans, reader, model):
     log_times = np.array([t for t, _ in forces])
     np.testing.assert_array_equal(log_times, [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in forces])
     np.testing.assert_allclose(np.diff(log_times), 5e6, atol=1)
-    assert len(bag["/cito/object_pose"]) == 201
+    assert len(bag["/cito/object_pose"]) == STEPS + 1
     (_, result), = bag["/cito/plan_result"]
     assert result.metrics.position_error_m == response.metrics.position_error_m
     assert result.metrics.physical_inaccuracy_ns == response.metrics.physical_inaccuracy_ns
@@ -244,7 +257,7 @@ BAD_REQUESTS = {
     "wrong sizes": (request(start=Q0_BETA_7[:5]), "has 7 names but 5 positions"),
     "joint limit": (request(start=[0, 0, 0, 9.0, 0, 0, 0]), "outside its range"),
     "off the table": (request(x=1.95), "off the table"),
-    "beyond reach": (request(x=1.25, y=0.4), "beyond the 1.25 m"),
+    "beyond reach": (request(x=1.25, y=0.4), "beyond the 1.249 m the arm can push"),
     "negative time limit": (request(time_limit=-1.0), "time_limit_s must be a non-negative number"),
 }
 

@@ -29,8 +29,10 @@ def settings_module_classes():
 
 def test_the_config_file_reads_into_frozen_typed_settings(settings):
     assert isinstance(settings.solver.max_iter, int) and settings.solver.stall_iterations == 5
-    assert settings.scene.name == "default" and settings.continuation.vscm.variable == "stiffness_N"
-    assert settings.continuation.scm is None and settings.weights.cccm.w5 is not None
+    assert settings.scene.name == "default" and settings.stages.discovery.max_iter == 50
+    assert settings.weights.scm.w5 is None and settings.weights.cccm.w5 is not None
+    assert settings.horizon == (settings.horizon_s, settings.control_period_s)
+    assert settings.with_overrides({"pipeline": "paper"}).horizon == (1.0, 0.05)
     with pytest.raises(dataclasses.FrozenInstanceError):
         settings.solver.max_iter = 3
 
@@ -64,13 +66,19 @@ def test_settings_round_trip_through_the_parameter_tree(settings):
     ({"weights.vscm.w3": -0.2}, "weights.vscm.w3 must be non-negative"),
     ({"weights.cccm.w5": None}, "weights.cccm.w5: missing"),
     ({"contact_models.vscm.stiffness_initial": 150.0}, "contact_models.vscm.stiffness_initial 150.0 exceeds"),
-    ({"continuation.vscm.variable": "stifness_N"}, "continuation.vscm.variable 'stifness_N' is not one of vscm's"),
-    ({"continuation.vscm.upper_bounds": [80.0, -1.0]}, r"continuation.vscm.upper_bounds\[1\] must be non-negative"),
+    ({"stages.starts": [0.3, 1.2]}, r"stages.starts must be one or more fractions of the horizon in \[0, 1\)"),
+    ({"stages.starts": [0.3, -1.0]}, r"stages.starts\[1\] must be non-negative"),
+    ({"stages.solver": "newton"}, "stages.solver must be one of"),
+    ({"stages.physical.max_iter": []}, "stages.physical must list at least one stage"),
+    ({"stages.physical.max_iter": [30]}, "stages.physical must list at least one stage, with one entry per stage"),
+    ({"tracking.kp": [1.0, 2.0]}, "tracking.kp and tracking.kd must have one gain per arm joint"),
+    ({"paper.control_period_s": 0.3}, "paper.horizon_s 1.0 must be a positive whole number of control periods"),
+    ({"pipeline": "fast"}, "pipeline must be one of"),
     ({"node.default_contact_model": "rigid"}, "node.default_contact_model must be one of"),
     ({"scene": "moon"}, "unknown scene 'moon'"),
     ({"solver.maxiter": 10}, r"solver.maxiter: unknown parameter \(solver has"),
     ({"solver.ipopt": 3}, "solver.ipopt must be a section of option names and values"),
-    ({"task.max_reach_m.x": 1.0}, "task.max_reach_m is a value, not a section"),
+    ({"task.push_distance_m.x": 1.0}, "task.push_distance_m is a value, not a section"),
 ])
 def test_a_bad_value_is_named_before_anything_is_solved(settings, overrides, message):
     with pytest.raises(ValueError, match=message):
@@ -86,9 +94,9 @@ def test_a_params_file_with_a_bad_value_fails_to_load(tmp_path):
 
 
 def test_overrides_give_a_new_validated_copy(settings):
-    changed = settings.with_overrides({"solver.max_iter": 7, "continuation.vscm": None})
-    assert changed.solver.max_iter == 7 and changed.continuation.vscm is None
-    assert settings.solver.max_iter == 100 and settings.continuation.vscm is not None
+    changed = settings.with_overrides({"solver.max_iter": 7, "stages.starts": [0.4]})
+    assert changed.solver.max_iter == 7 and changed.stages.starts == (0.4,)
+    assert settings.solver.max_iter == 100 and settings.stages.starts == (0.3, 0.5)
 
 
 def test_the_metric_fields_are_the_plan_metrics_message():

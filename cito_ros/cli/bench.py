@@ -2,7 +2,8 @@
 
     cito-bench rollout [--json]                   native vs Python-oracle rollout speed
     cito-bench gradient [--json]                  full-gradient time in rollout-equivalents
-    cito-bench paper [--json] [--out DIR]         the paper's nine cases, Tables I-IV
+    cito-bench paper [--pipeline P] [--json] [--out DIR]   the paper's nine cases, Tables I-IV
+    cito-bench targets [--n 50] [--seed S] [--models M ...] [--json] [--out DIR]   random pushes
     cito-bench speed-vs-error [--out DIR]         solver effort against error, with a plot
     cito-bench hard [--json] [--out DIR]          cases that stress the numerics
     cito-bench collisions [--json] [--out DIR]    the minimal scene against all collisions
@@ -49,8 +50,18 @@ def main(argv: list[str] | None = None) -> int:
     gradient.add_argument("--repeats", type=positive_int, default=20, help="timed gradients (median)")
     gradient.add_argument("--json", action="store_true", help="print one JSON object")
     paper = commands.add_parser("paper", help="the paper's nine cases and Tables I-IV")
+    paper.add_argument("--pipeline", choices=("paper", "physical"), default="paper",
+                       help="paper: exactly the paper's problem (Tables I-IV); physical: the planner's own")
     paper.add_argument("--out", type=Path, default=Path("out/paper"), help="folder for the Markdown and CSV tables")
     paper.add_argument("--json", action="store_true", help="print the list of nine result objects")
+    targets = commands.add_parser("targets", help="seeded random pushes, judged by their execution")
+    targets.add_argument("--n", type=positive_int, default=50, help="goals")
+    targets.add_argument("--seed", type=int, default=0)
+    targets.add_argument("--models", nargs="+", default=list(studies.MODELS), choices=studies.MODELS)
+    targets.add_argument("--perturb", type=int, default=0, metavar="K",
+                         help="also solve the first K goals with the target moved 1e-9 m and the start 1e-9 rad")
+    targets.add_argument("--out", type=Path, default=Path("out/targets"))
+    targets.add_argument("--json", action="store_true", help="print the summary and every run")
     sweep = commands.add_parser("speed-vs-error", help="solver effort against error (CSV, Markdown, PNG)")
     sweep.add_argument("--out", type=Path, default=Path("out/speed_vs_error"))
     sweep.add_argument("--quick", action="store_true", help="two settings, one case (a smoke run)")
@@ -85,13 +96,37 @@ def main(argv: list[str] | None = None) -> int:
                   f"ratio {result['ratio']:.1f} rollout-equivalents")
     elif args.command == "paper":
         bar = ProgressBar(9, "paper cases")
-        results = benchmarks.paper_benchmark(progress=lambda done, note: bar.update(done, note))
+        results = benchmarks.paper_benchmark(args.pipeline, progress=lambda done, note: bar.update(done, note))
         bar.close()
         paths = benchmarks.write_paper_outputs(results, args.out)
         if args.json:
             print(json.dumps(results))
         else:
             print(benchmarks.paper_tables(results))
+            print("written: " + ", ".join(str(p) for p in paths))
+    elif args.command == "targets":
+        from cito_ros import targets as targets_module
+        from cito_ros.settings import load_settings
+
+        settings = load_settings()
+        goals, refused = targets_module.draw_goals(args.n, args.seed, settings)
+        work = targets_module.jobs(goals, args.models, args.perturb)
+        bar = ProgressBar(len(work), "targets")
+        finished = []
+
+        def progress(record):
+            finished.append(record)
+            bar.update(len(finished), f"goal {record['goal']} {record['contact_model']}: "
+                                      f"{'ok' if record['success'] else 'miss'}")
+
+        records = targets_module.run(work, settings, progress)
+        bar.close()
+        summary = targets_module.report(records, refused)
+        paths = targets_module.write_outputs(records, summary, args.out)
+        if args.json:
+            print(json.dumps({"summary": summary, "runs": records}))
+        else:
+            print(targets_module.markdown(summary))
             print("written: " + ", ".join(str(p) for p in paths))
     elif args.command == "speed-vs-error":
         variants = [v for v in studies.VARIANTS if v.name in ("default", "max_iter 10")] if args.quick \

@@ -80,10 +80,12 @@ def _call(args) -> int:
         m = r.metrics
         print(f"plan-push ({args.contact_model}, beta {settings.beta:g}): status {r.status} "
               f"({'SUCCESS' if r.success else 'no success'}) {r.message}")
-        print(f"  position error     {100 * m.position_error_m:8.2f} cm")
-        print(f"  orientation error  {m.orientation_error_rad:8.4f} rad")
-        print(f"  physical inacc.    {m.physical_inaccuracy_ns:8.4f} N s")
-        print(f"  replay error       {100 * m.replay_position_error_m:8.2f} cm (virtual force off)")
+        print(f"  executed error     {100 * m.position_error_m:8.2f} cm, {m.orientation_error_rad:.4f} rad "
+              f"(virtual force off, as on the robot)")
+        print(f"  tracked error      {100 * m.tracked_position_error_m:8.2f} cm, "
+              f"{m.tracked_orientation_error_rad:.4f} rad (PD joint trajectory controller)")
+        print(f"  planned error      {100 * m.planned_position_error_m:8.2f} cm (contact model, virtual force on)")
+        print(f"  joint speeds       {m.max_joint_speed_ratio:8.2f} of the limits at most")
         print(f"  solve time         {m.solve_time_s:8.2f} s ({m.iterations} iterations; "
               f"round trip {time.monotonic() - started:.2f} s)")
         print(f"  trajectory         {len(r.trajectory.points)} points, {len(r.contact_forces)} contact samples")

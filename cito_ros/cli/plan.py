@@ -1,7 +1,10 @@
 """cito-plan: plan one push with a chosen contact model.
 
-    cito-plan --contact-model {cccm,scm,vscm} --beta {5,6,7} [--target X Y YAW]
-              [--max-iter N] [--time-limit S] [--json]
+    cito-plan [--contact-model {cccm,scm,vscm}] [--beta B] [--target X Y YAW] [--scene NAME]
+              [--pipeline {physical,paper}] [--max-iter N] [--time-limit S] [--json]
+
+With --json, one JSON object on stdout: the plan's summary, or {"status": "invalid_request",
+"message": ...} (exit code 2) when the request cannot be planned.
 """
 from __future__ import annotations
 
@@ -15,6 +18,8 @@ from cito_ros.planner import plan_push
 from cito_ros.results import IterationLog, PlanResult
 from cito_ros.settings import load_settings
 
+INVALID_REQUEST = "invalid_request"
+
 
 def print_summary(result: PlanResult) -> None:
     m = result.metrics
@@ -23,48 +28,54 @@ def print_summary(result: PlanResult) -> None:
     print(f"contact model      {result.contact_model} (beta = {result.beta}, initial distance {result.initial_distance_m:.3f} m)")
     print(f"status             {m.status.value}, {'SUCCESS' if m.success else 'task not achieved'} "
           f"({m.iterations} iterations, {m.solve_time_s:.2f} s)")
-    print(f"object             ({final}) m, target ({target}) m, yaw {result.target_yaw_rad:.3f} rad")
-    print(f"position error     {m.position_error_m * 100:7.2f} cm")
-    print(f"orientation error  {m.orientation_error_rad:7.4f} rad")
-    print(f"physical inacc.    {m.physical_inaccuracy_Ns:7.4f} N s (integral of the virtual force)")
-    print(f"replay error       {m.replay_position_error_m * 100:7.2f} cm (same torques, virtual force off)")
+    print(f"object             ({final}) m executed, goal ({target}) m, yaw {result.target_yaw_rad:.3f} rad")
+    print(f"executed error     {m.position_error_m * 100:7.2f} cm, {m.orientation_error_rad:.4f} rad "
+          f"(virtual force off, as on the robot)")
+    print(f"tracked error      {m.tracked_position_error_m * 100:7.2f} cm, {m.tracked_orientation_error_rad:.4f} rad "
+          f"(PD joint trajectory controller)")
+    print(f"planned error      {m.planned_position_error_m * 100:7.2f} cm, {m.planned_orientation_error_rad:.4f} rad "
+          f"(contact model, with the virtual force)")
+    print(f"joint speeds       {m.max_joint_speed_ratio:7.2f} of the limits at most")
+    print(f"physical inacc.    {m.physical_inaccuracy_Ns:7.4f} N s (integral of the planned virtual force)")
     if result.trajectory.warnings:
         print(f"MuJoCo warnings    {result.trajectory.warnings}")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cito-plan", description=__doc__.splitlines()[0])
-    parser.add_argument("--contact-model", choices=sorted(CONTACT_MODELS), default=None,
-                        help="contact model (default: vscm)")
-    parser.add_argument("--beta", type=float, default=None, help="start pose q0(beta) (default: config beta, 5)")
+    parser.add_argument("--contact-model", choices=sorted(CONTACT_MODELS), default="vscm")
+    parser.add_argument("--beta", type=float, default=None, help="start pose q0(beta) (default: the config's)")
     parser.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "YAW"), default=None,
-                        help="object goal: x, y (m, world) and yaw (rad); default 0.25 m along +x")
-    parser.add_argument("--max-iter", type=int, default=None, help="IPOPT iterations per stage")
+                        help="object goal: x, y (m, world) and yaw (rad); default the config's push along +x")
+    parser.add_argument("--scene", default=None, help="scene in config/scenes (default: the config's)")
+    parser.add_argument("--pipeline", choices=("physical", "paper"), default=None,
+                        help="physical (default): executable plans; paper: exactly the paper's problem")
+    parser.add_argument("--max-iter", type=int, default=None, help="solver iterations per stage")
     parser.add_argument("--time-limit", type=float, default=None, help="wall-clock limit of the solve (s)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object with the metrics")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
 
     try:
-        overrides = {}
-        if args.max_iter is not None:
-            overrides["solver.max_iter"] = args.max_iter
-        if args.time_limit is not None:
-            overrides["solver.time_limit_s"] = args.time_limit
-        settings = load_settings().with_overrides(overrides)
+        overrides = {"solver.max_iter": args.max_iter, "solver.time_limit_s": args.time_limit,
+                     "pipeline": args.pipeline}
+        settings = load_settings().with_overrides({k: v for k, v in overrides.items() if v is not None})
         bar = None if args.json else ProgressBar(None, "solving, iteration")
 
         def progress(entry: IterationLog) -> None:
             if bar is not None:
-                bar.update(entry.iteration, f"cost {entry.cost:.4g} violation {entry.constraint_violation:.1e}")
+                bar.update(entry.iteration, f"{entry.stage} cost {entry.cost:.4g}")
 
         target = None if args.target is None else args.target[:2]
         yaw = 0.0 if args.target is None else args.target[2]
-        result = plan_push(args.contact_model or "vscm", args.beta, target_position_m=target, target_yaw_rad=yaw,
-                           settings=settings, iteration_callback=progress)
+        result = plan_push(args.contact_model, args.beta, target_position_m=target, target_yaw_rad=yaw,
+                           scene=args.scene, settings=settings, iteration_callback=progress)
         if bar is not None:
             bar.close()
     except ValueError as error:
-        print(f"cito-plan: error: {error}", file=sys.stderr)
+        if args.json:
+            print(json.dumps({"status": INVALID_REQUEST, "message": str(error)}))
+        else:
+            print(f"cito-plan: error: {error}", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(result.summary()))

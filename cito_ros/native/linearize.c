@@ -28,6 +28,8 @@ typedef struct {
   mjtNum *ahead_qpos, *ahead_qvel, *ahead_sensor; // the forward one, when retrying backward
   mjtNum *dq, *column;
   int ncon, *pairs, pairs_capacity;               // nominal contact set
+  mjtNum* points;                                 // nominal contact points (3 per contact)
+  mjtNum jump;                                    // a point moving farther has jumped
   int failed;
 } Scratch;
 
@@ -47,10 +49,19 @@ static void integrate(const mjModel* m, mjData* d) {
   }
 }
 
+// A perturbation of size eps moves a contact point by about eps times a lever arm (under a metre);
+// a point that moves by more than CITO_POINT_JUMP eps has jumped (a collider choosing other points
+// of a flat face or an edge), which is as discontinuous as a contact appearing.
+#define CITO_POINT_JUMP 100
+
 static int same_contacts(const mjData* d, const Scratch* s) {
   if (d->ncon != s->ncon) return 0;
   for (int i = 0; i < d->ncon; i++) {
     if (d->contact[i].geom[0] != s->pairs[2 * i] || d->contact[i].geom[1] != s->pairs[2 * i + 1]) return 0;
+    for (int k = 0; k < 3; k++) {
+      mjtNum moved = d->contact[i].pos[k] - s->points[3 * i + k];
+      if (moved > s->jump || moved < -s->jump) return 0;
+    }
   }
   return 1;
 }
@@ -90,6 +101,7 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
                            mjtNum* D, int* flags) {
   int nv = m->nv, nu = m->nu, nx = 2 * nv;
   for (int i = 0; i < mjNWARNING; i++) d->warning[i].number = 0;
+  s->jump = CITO_POINT_JUMP * eps;
 
   // nominal evaluation: keeps the position- and velocity-stage results for the skips below
   mj_setState(m, d, state, mjSTATE_FULLPHYSICS);
@@ -102,17 +114,20 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
   mj_forward(m, d);
   if (d->ncon > s->pairs_capacity) {
     int* pairs = (int*)realloc(s->pairs, sizeof(int) * 2 * (size_t)d->ncon);
-    if (!pairs) {
+    mjtNum* points = pairs ? (mjtNum*)realloc(s->points, sizeof(mjtNum) * 3 * (size_t)d->ncon) : NULL;
+    if (pairs) s->pairs = pairs;
+    if (!pairs || !points) {
       s->failed = 1;
       return;
     }
-    s->pairs = pairs;
+    s->points = points;
     s->pairs_capacity = d->ncon;
   }
   s->ncon = d->ncon;
   for (int i = 0; i < d->ncon; i++) {
     s->pairs[2 * i] = d->contact[i].geom[0];
     s->pairs[2 * i + 1] = d->contact[i].geom[1];
+    mju_copy3(s->points + 3 * i, d->contact[i].pos);
   }
   mju_copy(s->sensor, d->sensordata, m->nsensordata);
   integrate(m, d);
@@ -213,6 +228,7 @@ static void* run_job(void* argument) {
     job->failed = s.failed;
   }
   free(s.pairs);
+  free(s.points);
   free(buffer);
   return NULL;
 }

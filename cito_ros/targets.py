@@ -1,0 +1,230 @@
+"""`cito-bench targets`: seeded random pushes, solved by each contact model, judged by execution.
+
+ROS-free. Goals are drawn from a seeded generator: the start pose q0(beta) for beta uniform in
+[4, 7] (initial distances 0.11-0.45 m), a push of 5-35 cm in a direction within +-35 degrees of
++x from the cube's start, a goal yaw within +-0.5 rad. A draw the planner would refuse (off the
+table, beyond the arm's reach) is drawn again and counted. Every plan is judged by its execution
+without the virtual force, and also executed by a PD joint trajectory controller (cito_ros.tracking).
+"""
+from __future__ import annotations
+
+import csv
+import math
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from cito_ros.builder import make_task
+from cito_ros.contact_models import contact_model
+from cito_ros.planner import plan_push
+from cito_ros.scene import Scene, start_configuration
+from cito_ros.settings import Settings, load_settings
+
+MODELS = ("cccm", "scm", "vscm")
+BETA_RANGE = (4.0, 7.0)
+PUSH_RANGE_M = (0.05, 0.35)
+DIRECTION_RANGE_RAD = math.radians(35.0)
+YAW_RANGE_RAD = 0.5
+
+
+@dataclass(frozen=True)
+class Goal:
+    index: int
+    beta: float
+    target_position_m: tuple[float, float]
+    target_yaw_rad: float
+    push_m: float
+    direction_rad: float
+
+
+def draw_goals(n: int, seed: int, settings: Settings | None = None) -> tuple[list[Goal], list[str]]:
+    """n plannable goals from the seed, and the reasons of the draws refused on the way."""
+    settings = load_settings() if settings is None else settings
+    scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
+    x0, y0 = settings.scene.object.position_m
+    rng = np.random.default_rng(seed)
+    goals, refused = [], []
+    while len(goals) < n:
+        beta = float(rng.uniform(*BETA_RANGE))
+        push = float(rng.uniform(*PUSH_RANGE_M))
+        direction = float(rng.uniform(-DIRECTION_RANGE_RAD, DIRECTION_RANGE_RAD))
+        yaw = float(rng.uniform(-YAW_RANGE_RAD, YAW_RANGE_RAD))
+        target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
+        try:
+            make_task(scene, scene.initial_state(start_configuration(beta)), np.array(target), yaw, settings)
+        except ValueError as error:
+            refused.append(str(error))
+            continue
+        goals.append(Goal(len(goals), beta, target, yaw, push, direction))
+    return goals, refused
+
+
+PERTURBATIONS = {"none": (0.0, 0.0), "target x +1e-9 m": (1e-9, 0.0), "start q +1e-9 rad": (0.0, 1e-9)}
+
+
+def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "none") -> dict[str, Any]:
+    """One goal with one model: the plan's summary with the goal's description. A perturbation moves
+    the target along x or every start joint angle by a hair (PERTURBATIONS)."""
+    target_shift, joint_shift = PERTURBATIONS[perturbation]
+    target = np.array(goal.target_position_m) + np.array([target_shift, 0.0])
+    result = plan_push(model, start_q=start_configuration(goal.beta) + joint_shift, target_position_m=target,
+                       target_yaw_rad=goal.target_yaw_rad, settings=settings)
+    summary = {key: value for key, value in result.summary().items() if key not in ("stages", "derivatives")}
+    summary["beta"] = goal.beta
+    return {"goal": goal.index, "push_m": goal.push_m, "direction_rad": goal.direction_rad,
+            "perturbation": perturbation, **summary}
+
+
+def jobs(goals: Iterable[Goal], models: Iterable[str], perturbed: int = 0) -> list[tuple[Goal, str, str]]:
+    """Every goal with every model, and the first `perturbed` goals again under each perturbation."""
+    goals = list(goals)
+    out = [(goal, model, "none") for goal in goals for model in models]
+    out += [(goal, model, name) for goal in goals[:perturbed] for model in models for name in PERTURBATIONS
+            if name != "none"]
+    return out
+
+
+def run(work: Iterable[tuple[Goal, str, str]], settings: Settings,
+        progress: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+    """The jobs, in this process."""
+    records = []
+    for goal, model, perturbation in work:
+        records.append(solve_goal(goal, model, settings, perturbation))
+        if progress:
+            progress(records[-1])
+    return records
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    return float(np.percentile(values, q)) if values else None
+
+
+def stability(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per model and perturbation: how often the verdict matched the unperturbed plan's, and how far the
+    executed errors moved."""
+    base = {(r["goal"], r["contact_model"]): r for r in records if r["perturbation"] == "none"}
+    out: dict[str, Any] = {}
+    for r in records:
+        if r["perturbation"] == "none" or (r["goal"], r["contact_model"]) not in base:
+            continue
+        b = base[(r["goal"], r["contact_model"])]
+        entry = out.setdefault(r["contact_model"], {}).setdefault(r["perturbation"], {"pairs": 0, "same_verdict": 0,
+                                                                                     "within_1cm": 0, "max_change_m": 0.0})
+        change = abs(r["position_error_m"] - b["position_error_m"])
+        entry["pairs"] += 1
+        entry["same_verdict"] += r["success"] == b["success"]
+        entry["within_1cm"] += change <= 0.01
+        entry["max_change_m"] = max(entry["max_change_m"], change)
+    return out
+
+
+def report(records: list[dict[str, Any]], refused: list[str]) -> dict[str, Any]:
+    """Per model: success rates, error and time statistics of the unperturbed plans, and the stability
+    of the perturbed ones."""
+    per_model = {}
+    plain = [r for r in records if r["perturbation"] == "none"]
+    for model in dict.fromkeys(r["contact_model"] for r in plain):
+        rows = [r for r in plain if r["contact_model"] == model]
+        successes = [r for r in rows if r["success"]]
+        executed = [r["position_error_m"] for r in rows]
+        tracked_close = [abs(r["tracked_position_error_m"] - r["position_error_m"]) <= 0.02 for r in successes]
+        times = [r["solve_time_s"] for r in rows]
+        per_model[model] = {
+            "goals": len(rows),
+            "success_rate": len(successes) / len(rows),
+            "planned_success_rate": sum(r["planned_success"] for r in rows) / len(rows),
+            "max_joint_speed_ratio": max(r["max_joint_speed_ratio"] for r in rows),
+            "executed_position_error_m": {"median": statistics.median(executed),
+                                          "p90": _percentile(executed, 90)},
+            "executed_orientation_error_rad": {"median": statistics.median(r["orientation_error_rad"] for r in rows),
+                                               "p90": _percentile([r["orientation_error_rad"] for r in rows], 90)},
+            "tracked_position_error_m": {"median": statistics.median(r["tracked_position_error_m"] for r in rows),
+                                         "p90": _percentile([r["tracked_position_error_m"] for r in rows], 90)},
+            "tracked_within_2cm_of_executed_in_successes": (sum(tracked_close) / len(tracked_close)
+                                                            if tracked_close else None),
+            "solve_time_s": {"median": statistics.median(times), "p90": _percentile(times, 90), "max": max(times)},
+            "iterations": {"median": statistics.median(r["iterations"] for r in rows),
+                           "p90": _percentile([r["iterations"] for r in rows], 90)},
+        }
+    return {"models": per_model, "stability": stability(records), "refused_draws": len(refused),
+            "refused_reasons": sorted(set(refused))[:5]}
+
+
+def markdown(summary: dict[str, Any]) -> str:
+    def cm(value):
+        return "-" if value is None else f"{100 * value:.2f}"
+
+    lines = ["| model | success | planned success | executed error median / p90 (cm) | executed orientation "
+             "median / p90 (rad) | tracked error median / p90 (cm) | tracked within 2 cm of executed (successes) "
+             "| max joint speed / limit | solve time median / p90 / max (s) | iterations median / p90 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for model, m in summary["models"].items():
+        e, o, tr = m["executed_position_error_m"], m["executed_orientation_error_rad"], m["tracked_position_error_m"]
+        t, it = m["solve_time_s"], m["iterations"]
+        close = m["tracked_within_2cm_of_executed_in_successes"]
+        lines.append(f"| {model.upper()} | {m['success_rate']:.0%} ({round(m['success_rate'] * m['goals'])}/"
+                     f"{m['goals']}) | {m['planned_success_rate']:.0%} | {cm(e['median'])} / {cm(e['p90'])} | "
+                     f"{o['median']:.3f} / {o['p90']:.3f} | {cm(tr['median'])} / {cm(tr['p90'])} | "
+                     f"{'-' if close is None else f'{close:.0%}'} | {m['max_joint_speed_ratio']:.2f} | "
+                     f"{t['median']:.2f} / {t['p90']:.2f} / {t['max']:.2f} | {it['median']:.0f} / {it['p90']:.0f} |")
+    if summary["stability"]:
+        lines += ["", "| model | perturbation | same verdict | executed error within 1 cm | largest change (cm) |",
+                  "|---|---|---|---|---|"]
+        for model, by in summary["stability"].items():
+            for name, s in by.items():
+                lines.append(f"| {model.upper()} | {name} | {s['same_verdict']}/{s['pairs']} | "
+                             f"{s['within_1cm']}/{s['pairs']} | {100 * s['max_change_m']:.2f} |")
+    lines.append("")
+    lines.append(f"Draws refused by the planner's checks and drawn again: {summary['refused_draws']}"
+                 + (f" (e.g. {summary['refused_reasons'][0]})" if summary["refused_reasons"] else ""))
+    return "\n".join(lines) + "\n"
+
+
+def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: Path) -> list[Path]:
+    import json
+
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / "targets_runs.csv", out / "targets.md", out / "targets.json", out / "targets.png"]
+    keys = list(dict.fromkeys(k for r in records for k in r if not isinstance(r[k], (dict, list))))
+    with open(paths[0], "w", newline="") as stream:
+        writer = csv.DictWriter(stream, fieldnames=keys, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(records)
+    paths[1].write_text(markdown(summary))
+    paths[2].write_text(json.dumps({"summary": summary, "runs": records}, indent=1))
+    plot(records, paths[3])
+    return paths
+
+
+def plot(records: list[dict[str, Any]], path: Path) -> Path:
+    """Executed error against solve time per model, successes filled; success rate in the legend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
+    figure, axis = plt.subplots(figsize=(7.5, 5))
+    for model in dict.fromkeys(r["contact_model"] for r in records):
+        rows = [r for r in records if r["contact_model"] == model]
+        rate = sum(r["success"] for r in rows) / len(rows)
+        for success in (True, False):
+            chosen = [r for r in rows if r["success"] == success]
+            axis.scatter([r["solve_time_s"] for r in chosen], [max(100 * r["position_error_m"], 1e-3) for r in chosen],
+                         color=colors.get(model, "gray"), facecolors=colors.get(model, "gray") if success else "none",
+                         s=30, label=f"{model.upper()} ({rate:.0%} success)" if success else None)
+    axis.axhline(2.0, color="gray", linewidth=0.8, linestyle="--")
+    axis.set_xscale("log")
+    axis.set_yscale("log")
+    axis.set_xlabel("solve time (s)")
+    axis.set_ylabel("executed position error (cm), virtual force off")
+    axis.set_title("random pushes: error executed on the robot against solve time (filled: success)")
+    axis.legend(fontsize=8)
+    axis.grid(True, which="both", alpha=0.3)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
