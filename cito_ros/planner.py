@@ -32,6 +32,7 @@ def plan_push(
     target_yaw_rad: float = 0.0,
     start_q: np.ndarray | None = None,
     scene: str | None = None,
+    object_pose: tuple[np.ndarray, float] | None = None,
     settings: Settings | None = None,
     iteration_callback: Callable[[IterationLog], None] | None = None,
     cancel: threading.Event | None = None,
@@ -46,6 +47,8 @@ def plan_push(
       target_yaw_rad: goal yaw of the object about world z.
       start_q: (7,) start configuration of the arm (at rest), instead of q0(beta).
       scene: scene name in config/scenes (default: the settings' scene).
+      object_pose: ((x, y) or (x, y, z), yaw) where the object is now, world frame (default: the
+        scene's pose); it must stand on the table, clear of the arm, within reach.
       settings: planner settings (default: config/planner.yaml); `pipeline` selects the physical
         pipeline or exactly the paper's problem.
       iteration_callback: called with an IterationLog after every solver iteration (from the
@@ -57,7 +60,7 @@ def plan_push(
       ValueError: for an unknown contact model, a bad beta, start configuration, target or scene.
     """
     settings = load_settings() if settings is None else settings
-    request = PushRequest(contact_model, beta, start_q, target_position_m, target_yaw_rad, scene)
+    request = PushRequest(contact_model, beta, start_q, target_position_m, target_yaw_rad, scene, object_pose)
     posed = build_problem(settings, request)
     if settings.pipeline == "paper":
         outcome = solve_paper(posed, settings, iteration_callback=iteration_callback, cancel=cancel)
@@ -124,6 +127,7 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         iteration_log=outcome.log,
         stages=outcome.stages,
         derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
+        scene=discovery.scene,
     )
 
 

@@ -104,6 +104,7 @@ class Evaluation:
     knot_signed_distance: np.ndarray  # (N,)
     finite: bool
     residuals: np.ndarray         # r: the cost is r . r
+    position_error_m: float       # final object position error
     gradient: np.ndarray | None = None
     jacobian: np.ndarray | None = None
     residual_jacobian: np.ndarray | None = None
@@ -327,8 +328,10 @@ class PushProblem:
         else:
             terms, cost, residuals = {}, math.inf, np.zeros(0)
             constraints, phi = np.full(self.n_constraints, math.nan), np.full(self.n_knots, math.nan)
+        position_error = float(np.linalg.norm(self.task.pose_error(self.scene.object_qpos(states[-1]))[0])) \
+            if finite else math.nan
         evaluation = Evaluation(z.copy(), self.knot_controls(z), states, sensordata, warnings, cost, terms,
-                                constraints, phi, finite, residuals)
+                                constraints, phi, finite, residuals, position_error)
         self._cache = [evaluation, *self._cache[:CACHED_EVALUATIONS - 1]]
         return evaluation
 

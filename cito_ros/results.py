@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from cito_ros.scene import Scene
 from cito_ros.simulator import Trajectory
 
 
@@ -47,6 +48,9 @@ class IterationLog:
     constraint_violation: float
     elapsed_s: float             # since the solve began
     stage: str                   # e.g. "start 1: discovery", "start 1: physical 2"
+    position_error_m: float      # the last evaluated point's final object position error (NaN if none)
+    virtual_force: bool          # whether that error is with the virtual force (the contact model's plan)
+                                 # or executed without it
 
 
 @dataclass(frozen=True)
@@ -116,6 +120,7 @@ class PlanResult:
     iteration_log: tuple[IterationLog, ...]
     stages: tuple[StageRecord, ...]
     derivative_info: dict[str, int]
+    scene: Scene                     # where it was planned: the object's start pose, the geometry to draw
 
     @property
     def status(self) -> Status:
@@ -135,6 +140,8 @@ class PlanResult:
             "initial_distance_m": self.initial_distance_m,
             "target_position_m": self.target_position_m.tolist(),
             "target_yaw_rad": self.target_yaw_rad,
+            "object_start_position_m": self.trajectory.object_position_m[0].tolist(),
+            "object_start_yaw_rad": self.scene.config.object.yaw_rad,
             **self.metrics.as_dict(),
             "final_object_position_m": self.trajectory.object_position_m[-1].tolist(),
             "planned_object_position_m": self.planned.object_position_m[-1].tolist(),

@@ -21,8 +21,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from cito_ros.contact_models import CONTACT_MODELS
 from cito_ros.results import IterationLog, Metrics, PlanResult, Status
-from cito_ros.scene import ARM_JOINTS
-from cito_ros.settings import Settings
+from cito_ros.scene import ARM_JOINTS, TABLE_TOP_Z_M
+from cito_ros.settings import SceneConfig, Settings
 
 Response = PlanPush.Response
 QUATERNION_MIN_NORM = 1e-6
@@ -39,42 +39,53 @@ class PlanInputs:
     target_yaw_rad: float
     target_orientation: np.ndarray   # normalised quaternion (x, y, z, w)
     time_limit_s: float
+    object_pose: tuple[np.ndarray, float] | None  # (position (3,), yaw); None: the scene's own pose
+    scene: str | None                # None: the configured scene
 
 
-def parse_request(request: PlanPush.Request, default_contact_model: str, default_time_limit_s: float) -> PlanInputs:
-    """Validate a PlanPush request. Raises ValueError with a message for the caller.
-
-    A non-unit quaternion is normalised; a zero, NaN or tilted one (roll or pitch beyond
-    1 mrad: the object stays flat on the table) is rejected.
-    """
-    p, o = request.target_pose.position, request.target_pose.orientation
+def flat_pose(pose: Pose, name: str, *, unset_allowed: bool = False) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """(position, yaw, normalised quaternion x y z w) of a pose that may only turn about z. ValueError
+    naming `name` for NaN, a zero quaternion or a tilt beyond 1 mrad; a non-unit quaternion is
+    normalised. With unset_allowed, a pose at the origin (the arm's base, where no object can be:
+    a default-constructed Pose) is unset: None."""
+    p, o = pose.position, pose.orientation
     position = np.array([p.x, p.y, p.z])
-    if not np.all(np.isfinite(position)):
-        raise ValueError(f"target_pose.position contains NaN or Inf: {position.tolist()}")
     quaternion = np.array([o.x, o.y, o.z, o.w])
+    if unset_allowed and not np.any(position):
+        return None
+    norm = float(np.linalg.norm(quaternion)) if np.all(np.isfinite(quaternion)) else math.nan
+    if not np.all(np.isfinite(position)):
+        raise ValueError(f"{name}.position contains NaN or Inf: {position.tolist()}")
     if not np.all(np.isfinite(quaternion)):
-        raise ValueError(f"target_pose.orientation contains NaN or Inf: {quaternion.tolist()}")
-    norm = float(np.linalg.norm(quaternion))
+        raise ValueError(f"{name}.orientation contains NaN or Inf: {quaternion.tolist()}")
     if norm < QUATERNION_MIN_NORM:
-        raise ValueError("target_pose.orientation is a zero quaternion; give a unit quaternion (w = 1 for no rotation)")
+        raise ValueError(f"{name}.orientation is a zero quaternion; give a unit quaternion (w = 1 for no rotation)")
     x, y, z, w = quaternion / norm
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
     if abs(roll) > TILT_TOLERANCE_RAD or abs(pitch) > TILT_TOLERANCE_RAD:
-        raise ValueError(f"target_pose.orientation must be a rotation about z (the object stays flat on the table); "
+        raise ValueError(f"{name}.orientation must be a rotation about z (the object rests flat on the table); "
                          f"it has roll {roll:.4f} rad and pitch {pitch:.4f} rad")
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return position, math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)), np.array([x, y, z, w])
 
+
+def parse_request(request, default_contact_model: str, default_time_limit_s: float) -> PlanInputs:
+    """Validate a PlanPush service request or action goal (the same fields). Raises ValueError with a
+    message for the caller."""
+    position, yaw, orientation = flat_pose(request.target_pose, "target_pose")
     model = request.contact_model.strip().lower() or default_contact_model
     if model not in CONTACT_MODELS:
         raise ValueError(f"unknown contact model {request.contact_model!r}; choose one of {sorted(CONTACT_MODELS)} "
                          "(or empty for the default)")
-
     time_limit = request.time_limit_s
     if not math.isfinite(time_limit) or time_limit < 0:
         raise ValueError(f"time_limit_s must be a non-negative number (0: the default), got {time_limit}")
-    return PlanInputs(model, parse_start_state(request.start_state), position, yaw,
-                      np.array([x, y, z, w]), time_limit or default_time_limit_s)
+    object_pose = flat_pose(request.object_pose, "object_pose", unset_allowed=True)
+    scene = request.scene.strip() or None
+    if scene is not None and ("/" in scene or scene.endswith((".yaml", ".yml"))):
+        raise ValueError(f"scene must be the name of a scene in config/scenes, got {request.scene!r}")
+    return PlanInputs(model, parse_start_state(request.start_state), position, yaw, orientation,
+                      time_limit or default_time_limit_s, None if object_pose is None else object_pose[:2], scene)
 
 
 def parse_start_state(state: JointState) -> np.ndarray | None:
@@ -144,21 +155,28 @@ def vector(values: np.ndarray) -> Vector3:
     return Vector3(x=float(values[0]), y=float(values[1]), z=float(values[2]))
 
 
-def request_msg(inputs: PlanInputs, start_q: np.ndarray, request_id: int, stamp_ns: int, frame_id: str) -> PlanRequest:
+def request_msg(inputs: PlanInputs, start_q: np.ndarray, scene: SceneConfig, request_id: int, stamp_ns: int,
+                frame_id: str) -> PlanRequest:
+    """The request as it is planned: defaults resolved, the object where `scene` puts it."""
     x, y, z, w = inputs.target_orientation
+    yaw = scene.object.yaw_rad
+    object_position = np.array([*scene.object.position_m, TABLE_TOP_Z_M + scene.object.half_size_m])
     return PlanRequest(
         header=Header(stamp=time_msg(stamp_ns), frame_id=frame_id), request_id=request_id,
         target_pose=pose_msg(inputs.target_position_m, np.array([w, x, y, z])),
         contact_model=inputs.contact_model,
         start_state=JointState(header=Header(stamp=time_msg(stamp_ns), frame_id=frame_id), name=list(ARM_JOINTS),
                                position=[float(v) for v in start_q]),
-        time_limit_s=float(inputs.time_limit_s))
+        time_limit_s=float(inputs.time_limit_s),
+        object_pose=pose_msg(object_position, np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])),
+        scene=scene.name)
 
 
 def progress_msg(entry: IterationLog, request_id: int, contact_model: str, stamp_ns: int, frame_id: str) -> SolverProgress:
     return SolverProgress(header=Header(stamp=time_msg(stamp_ns), frame_id=frame_id), request_id=request_id,
                           contact_model=contact_model, stage=entry.stage, iteration=entry.iteration, cost=entry.cost,
-                          constraint_violation=entry.constraint_violation, elapsed_s=entry.elapsed_s)
+                          constraint_violation=entry.constraint_violation, elapsed_s=entry.elapsed_s,
+                          position_error_m=entry.position_error_m, virtual_force=entry.virtual_force)
 
 
 @dataclass(frozen=True)
@@ -215,7 +233,8 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
     return PlanMessages(joint_trajectory, forces, poses, Path(header=header, poses=poses), result_msg, stamps[:steps])
 
 
-def fill_response(response: PlanPush.Response, messages: PlanMessages) -> PlanPush.Response:
+def fill_response(response, messages: PlanMessages):
+    """Fill a PlanPush service response or action result (the same fields) from a finished plan."""
     result = messages.result
     response.success, response.status, response.message = result.metrics.success, result.status, result.message
     response.metrics, response.bag_path = result.metrics, result.bag_path

@@ -28,6 +28,7 @@ class NlpPoint(Protocol):
     cost: float
     constraints: np.ndarray
     finite: bool
+    position_error_m: float  # final object position error of the rollout
 
 
 class NlpProblem(Protocol):
@@ -81,9 +82,9 @@ class IterationMonitor:
 
     def __init__(self, settings: SolverSettings, started: float, iteration_offset: int,
                  violation_tolerance: float, cancel: threading.Event | None,
-                 callback: Callable[[IterationLog], None] | None, stage: str = ""):
+                 callback: Callable[[IterationLog], None] | None, stage: str = "", virtual_force: bool = True):
         self.settings, self.started, self.iteration_offset = settings, started, iteration_offset
-        self.stage = stage
+        self.stage, self.virtual_force = stage, virtual_force
         self.violation_tolerance = violation_tolerance
         self.cancel, self.callback = cancel, callback
         self.log: list[IterationLog] = []
@@ -92,7 +93,9 @@ class IterationMonitor:
     def record(self, iteration: int, cost: float, constraint_violation: float, last: NlpPoint | None,
                last_violation: float) -> Status | None:
         elapsed = time.perf_counter() - self.started
-        entry = IterationLog(self.iteration_offset + iteration, cost, constraint_violation, elapsed, self.stage)
+        error = last.position_error_m if last is not None and last.finite else math.nan
+        entry = IterationLog(self.iteration_offset + iteration, cost, constraint_violation, elapsed, self.stage,
+                             error, self.virtual_force)
         self.log.append(entry)
         if last is not None and last.finite:
             candidate = (max(last_violation - self.violation_tolerance, 0.0), last.cost, last.z)

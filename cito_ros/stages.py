@@ -122,7 +122,8 @@ class _Run:
         offset = self.log[-1].iteration + 1 if self.log else 0
         began = time.perf_counter()
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
-                                   self.clock.cancel, self.clock.report, f"{self.prefix}{name}")
+                                   self.clock.cancel, self.clock.report, f"{self.prefix}{name}",
+                                   problem.cost.virtual_force)
         outcome = solver.solve(problem, start, lower, upper, monitor)
         self.log += outcome.log
         executed = execute(executor, problem.split(outcome.z)[0])

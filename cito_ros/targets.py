@@ -13,7 +13,7 @@ import math
 import statistics
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -87,17 +87,6 @@ def jobs(goals: Iterable[Goal], models: Iterable[str], perturbed: int = 0) -> li
     return out
 
 
-def run(work: Iterable[tuple[Goal, str, str]], settings: Settings,
-        progress: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
-    """The jobs, in this process."""
-    records = []
-    for goal, model, perturbation in work:
-        records.append(solve_goal(goal, model, settings, perturbation))
-        if progress:
-            progress(records[-1])
-    return records
-
-
 def _percentile(values: list[float], q: float) -> float | None:
     return float(np.percentile(values, q)) if values else None
 
@@ -123,7 +112,9 @@ def stability(records: list[dict[str, Any]]) -> dict[str, Any]:
 
 def report(records: list[dict[str, Any]], refused: list[str]) -> dict[str, Any]:
     """Per model: success rates, error and time statistics of the unperturbed plans, and the stability
-    of the perturbed ones."""
+    of the perturbed ones. A failed solve (an exception, a lost worker) counts as no success."""
+    failed = [r for r in records if r.get("failed")]
+    records = [r for r in records if not r.get("failed")]
     per_model = {}
     plain = [r for r in records if r["perturbation"] == "none"]
     for model in dict.fromkeys(r["contact_model"] for r in plain):
@@ -132,9 +123,11 @@ def report(records: list[dict[str, Any]], refused: list[str]) -> dict[str, Any]:
         executed = [r["position_error_m"] for r in rows]
         tracked_close = [abs(r["tracked_position_error_m"] - r["position_error_m"]) <= 0.02 for r in successes]
         times = [r["solve_time_s"] for r in rows]
+        lost = [r for r in failed if f"-{model}-none" in r["key"]]
         per_model[model] = {
-            "goals": len(rows),
-            "success_rate": len(successes) / len(rows),
+            "goals": len(rows) + len(lost),
+            "failed_solves": len(lost),
+            "success_rate": len(successes) / (len(rows) + len(lost)),
             "planned_success_rate": sum(r["planned_success"] for r in rows) / len(rows),
             "max_joint_speed_ratio": max(r["max_joint_speed_ratio"] for r in rows),
             "executed_position_error_m": {"median": statistics.median(executed),
@@ -150,7 +143,7 @@ def report(records: list[dict[str, Any]], refused: list[str]) -> dict[str, Any]:
                            "p90": _percentile([r["iterations"] for r in rows], 90)},
         }
     return {"models": per_model, "stability": stability(records), "refused_draws": len(refused),
-            "refused_reasons": sorted(set(refused))[:5]}
+            "refused_reasons": sorted(set(refused))[:5], "failures": [(r["key"], r["error"]) for r in failed]}
 
 
 def markdown(summary: dict[str, Any]) -> str:
@@ -178,6 +171,8 @@ def markdown(summary: dict[str, Any]) -> str:
                 lines.append(f"| {model.upper()} | {name} | {s['same_verdict']}/{s['pairs']} | "
                              f"{s['within_1cm']}/{s['pairs']} | {100 * s['max_change_m']:.2f} |")
     lines.append("")
+    for key, error in summary["failures"]:
+        lines.append(f"- {key}: failed: {error}")
     lines.append(f"Draws refused by the planner's checks and drawn again: {summary['refused_draws']}"
                  + (f" (e.g. {summary['refused_reasons'][0]})" if summary["refused_reasons"] else ""))
     return "\n".join(lines) + "\n"

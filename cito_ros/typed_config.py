@@ -46,7 +46,7 @@ def dotted(path: str, name: str) -> str:
     return f"{path}.{name}" if path else name
 
 
-def _optional(annotation) -> tuple[bool, Any]:
+def optional_type(annotation) -> tuple[bool, Any]:
     """(whether None is admissible, the type without None)."""
     arguments = typing.get_args(annotation)
     if typing.get_origin(annotation) in (typing.Union, types.UnionType) and type(None) in arguments:
@@ -67,7 +67,7 @@ def parse(cls, raw: Any, path: str):
         if f.metadata.get("internal"):
             continue
         name = dotted(path, f.name)
-        optional, annotation = _optional(hints[f.name])
+        optional, annotation = optional_type(hints[f.name])
         if raw.get(f.name) is None:
             if optional:
                 values[f.name] = None

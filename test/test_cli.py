@@ -57,7 +57,19 @@ def test_plan_human_readable_with_target():
                  "--max-iter", "5")
     assert result.returncode == 0, result.stderr
     assert "executed error" in result.stdout and "planned error" in result.stdout
-    assert "solving, iteration" in result.stderr  # the progress display
+    assert "solving: " in result.stderr and "it/s" in result.stderr  # the progress display
+
+
+def test_plan_from_where_the_object_is():
+    result = run("cito-plan", "--contact-model", "scm", "--beta", "7", "--object", "0.99", "0.05", "0.3",
+                 "--target", "1.09", "0.05", "0.3", "--max-iter", "3", "--json")
+    assert result.returncode == 0, result.stderr
+    plan = json.loads(result.stdout)
+    assert plan["object_start_position_m"][:2] == pytest.approx([0.99, 0.05], abs=1e-6)
+    assert plan["object_start_yaw_rad"] == 0.3
+    refused = run("cito-plan", "--beta", "7", "--object", "0.87", "0", "0", "--json")
+    assert refused.returncode == 2
+    assert "intersects the arm's" in json.loads(refused.stdout)["message"]
 
 
 @pytest.mark.parametrize("args, message", [

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 import rclpy
@@ -24,9 +25,13 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import Marker, MarkerArray
 
+from cito_ros.contact_models import contact_model
 from cito_ros.planner import plan_push
+from cito_ros.scene import Scene
 from cito_ros.settings import load_settings
 
 NODE = str(Path(sys.executable).parent / "cito-planner-node")
@@ -35,7 +40,7 @@ JOINTS = ["j0", "j1", "j2", "j3", "j4", "j5", "j6"]
 TOPICS = {
     "/cito/plan_request": PlanRequest, "/cito/progress": SolverProgress, "/cito/joint_trajectory": JointTrajectory,
     "/cito/contact_forces": ContactForce, "/cito/object_pose": PoseStamped, "/cito/object_path": PathMsg,
-    "/cito/plan_result": PlanResult,
+    "/cito/plan_result": PlanResult, "/joint_states": JointState, "/cito/scene_markers": MarkerArray,
 }
 LATCHED = {"/cito/joint_trajectory", "/cito/object_path", "/cito/plan_result"}
 STEPS = round(load_settings().horizon[0] / load_settings().scene.timestep_s)  # simulation steps of a plan
@@ -97,8 +102,11 @@ class Client:
 
 
 def request(model: str = "scm", x: float = 1.09, y: float = 0.0, z: float = 0.1, q=(0.0, 0.0, 0.0, 1.0),
-            start=Q0_BETA_7, names=JOINTS, time_limit: float = 0.0) -> PlanPush.Request:
-    r = PlanPush.Request()
+            start=Q0_BETA_7, names=JOINTS, time_limit: float = 0.0, object_pose=None, scene: str = "",
+            r=None) -> PlanPush.Request:
+    """A service request (or, given r, an action goal) to push the cube to (x, y) from q0(beta = 7);
+    object_pose: (x, y, z, (qx, qy, qz, qw)) where the cube is now."""
+    r = PlanPush.Request() if r is None else r
     r.target_pose.position.x, r.target_pose.position.y, r.target_pose.position.z = x, y, z
     r.target_pose.orientation.x, r.target_pose.orientation.y, r.target_pose.orientation.z, r.target_pose.orientation.w = q
     r.contact_model = model
@@ -106,6 +114,10 @@ def request(model: str = "scm", x: float = 1.09, y: float = 0.0, z: float = 0.1,
         r.start_state.name = list(names)
         r.start_state.position = [float(v) for v in start]
     r.time_limit_s = time_limit
+    if object_pose is not None:
+        p, o = r.object_pose.position, r.object_pose.orientation
+        (p.x, p.y, p.z), (o.x, o.y, o.z, o.w) = object_pose[:3], object_pose[3]
+    r.scene = scene
     return r
 
 
@@ -174,6 +186,7 @@ def test_every_topic_is_received(plans, model):
     assert len(received["/cito/plan_request"]) == 1 and received["/cito/plan_request"][0].contact_model == model
     assert len(received["/cito/progress"]) >= 1
     assert len(received["/cito/contact_forces"]) == STEPS and len(received["/cito/object_pose"]) == STEPS + 1
+    assert len(received["/joint_states"]) == len(received["/cito/scene_markers"]) == STEPS + 1
     assert received["/cito/joint_trajectory"][-1].points[-1].positions.tolist() == \
         response.trajectory.points[-1].positions.tolist()
     assert len(received["/cito/object_path"][-1].poses) == STEPS + 1
@@ -247,6 +260,37 @@ def test_the_bag_matches_the_response(plans, reader, model):
     assert len(bag["/cito/progress"]) >= response.metrics.iterations
 
 
+@pytest.mark.parametrize("reader", [read_with_mcap, read_with_rosbags])
+def test_the_bag_draws_the_arm_and_the_cube_at_every_step(plans, reader):
+    """/joint_states and /cito/scene_markers at every state, the markers where MuJoCo puts the geoms."""
+    response, _ = plans["vscm"]
+    bag = reader(Path(response.bag_path))
+    joints, markers, poses = bag["/joint_states"], bag["/cito/scene_markers"], bag["/cito/object_pose"]
+    assert len(joints) == len(markers) == STEPS + 1
+    assert [t for t, _ in joints] == [t for t, _ in markers] == [t for t, _ in poses]
+    settings = load_settings()
+    scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
+    for t in (0, STEPS // 3, 2 * STEPS // 3, STEPS):
+        q = np.asarray(joints[t][1].position)
+        np.testing.assert_array_equal(q, response.trajectory.points[t].positions)
+        data = scene.data_at(q)
+        drawn = {(m.ns, m.id): m for m in markers[t][1].markers}
+        assert all(m.header.frame_id == "world" for m in drawn.values())
+        for geom in ("plate", "l4_geom", "l1_geom"):
+            marker = drawn[(geom, 0)]
+            p, o = marker.pose.position, marker.pose.orientation
+            np.testing.assert_allclose([p.x, p.y, p.z], data.geom_xpos[scene.model.geom(geom).id], atol=1e-12)
+            expected = np.empty(4)
+            mujoco.mju_mat2Quat(expected, data.geom_xmat[scene.model.geom(geom).id])
+            assert abs(np.dot([o.w, o.x, o.y, o.z], expected)) == pytest.approx(1.0, abs=1e-12)
+        cube, pose = drawn[("object_geom", 0)].pose, poses[t][1].pose
+        assert (cube.position.x, cube.position.y, cube.position.z) == pytest.approx(
+            (pose.position.x, pose.position.y, pose.position.z), abs=1e-12)
+    contact = [m for _, array in markers for m in array.markers if m.ns == "contact" and m.type == Marker.ARROW
+               and m.action == Marker.ADD]
+    assert contact, "the push's contact force is drawn"
+
+
 BAD_REQUESTS = {
     "nan position": (request(x=float("nan")), "position contains NaN or Inf"),
     "inf orientation": (request(q=(0.0, 0.0, math.inf, 1.0)), "orientation contains NaN or Inf"),
@@ -259,6 +303,15 @@ BAD_REQUESTS = {
     "off the table": (request(x=1.95), "off the table"),
     "beyond reach": (request(x=1.25, y=0.4), "beyond the 1.249 m the arm can push"),
     "negative time limit": (request(time_limit=-1.0), "time_limit_s must be a non-negative number"),
+    "tilted object": (request(object_pose=(0.99, 0.0, 0.1, (0.0, 0.01, 0.0, 1.0))), "object_pose.orientation must be "
+                      "a rotation about z"),
+    "object off the table": (request(object_pose=(1.74, 0.0, 0.1, (0.0, 0.0, 0.0, 1.0))), "overhangs the table"),
+    "object in the air": (request(object_pose=(0.99, 0.0, 0.4, (0.0, 0.0, 0.0, 1.0))), "must rest on the table"),
+    "object inside the arm": (request(object_pose=(0.87, 0.0, 0.1, (0.0, 0.0, 0.0, 1.0))), "intersects the arm's"),
+    "object out of reach": (request(x=1.25, y=0.5, object_pose=(1.2, 0.5, 0.1, (0.0, 0.0, 0.0, 1.0))),
+                            "1.300 m from the arm base, beyond the 1.249 m the arm can push it from"),
+    "unknown scene": (request(scene="moon"), "unknown scene 'moon'"),
+    "scene path": (request(scene="/etc/passwd.yaml"), "scene must be the name of a scene"),
 }
 
 

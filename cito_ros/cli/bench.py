@@ -21,9 +21,9 @@ import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from cito_ros import benchmarks, studies  # noqa: E402
+from cito_ros import benchmarks, studies, sweep  # noqa: E402
 from cito_ros.cases import load_cases  # noqa: E402
-from cito_ros.cli.progress import ProgressBar  # noqa: E402
+from cito_ros.cli.progress import advance, progress_bar  # noqa: E402
 
 
 def print_rollout(result: dict) -> None:
@@ -31,6 +31,13 @@ def print_rollout(result: dict) -> None:
     print(f"  native       {result['native_rollout_ms']:8.3f} ms   ({result['step_us']:.2f} us/step)")
     print(f"  python       {result['python_rollout_ms']:8.3f} ms   (native is {result['speedup_native_over_python']:.1f}x faster)")
     print(f"  batched      {result['batched_rollouts_per_s']:8.0f} rollouts/s on {result['batch_threads']} threads")
+
+
+def add_sweep_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--workers", type=int, default=None,
+                        help="solves at once on Ray (default: this machine's cores); 0: one by one in this process")
+    parser.add_argument("--address", default=None,
+                        help="join a running Ray cluster (host:port or auto) instead of starting a local one")
 
 
 def positive_int(text: str) -> int:
@@ -60,12 +67,14 @@ def main(argv: list[str] | None = None) -> int:
     targets.add_argument("--models", nargs="+", default=list(studies.MODELS), choices=studies.MODELS)
     targets.add_argument("--perturb", type=int, default=0, metavar="K",
                          help="also solve the first K goals with the target moved 1e-9 m and the start 1e-9 rad")
-    targets.add_argument("--out", type=Path, default=Path("out/targets"))
+    targets.add_argument("--out", type=Path, default=Path("out/targets"),
+                         help="reports, and each finished case as it arrives (a rerun skips those)")
     targets.add_argument("--json", action="store_true", help="print the summary and every run")
-    sweep = commands.add_parser("speed-vs-error", help="solver effort against error (CSV, Markdown, PNG)")
-    sweep.add_argument("--out", type=Path, default=Path("out/speed_vs_error"))
-    sweep.add_argument("--quick", action="store_true", help="two settings, one case (a smoke run)")
-    sweep.add_argument("--json", action="store_true", help="print the per-setting summary")
+    add_sweep_options(targets)
+    speed = commands.add_parser("speed-vs-error", help="solver effort against error (CSV, Markdown, PNG)")
+    speed.add_argument("--out", type=Path, default=Path("out/speed_vs_error"))
+    speed.add_argument("--quick", action="store_true", help="two settings, one case (a smoke run)")
+    speed.add_argument("--json", action="store_true", help="print the per-setting summary")
     hard = commands.add_parser("hard", help="cases that stress the numerics")
     hard.add_argument("--out", type=Path, default=Path("out/hard"))
     hard.add_argument("--cases", nargs="+", default=None, help="case names (default: all of config/hard_cases.yaml)")
@@ -95,8 +104,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{result['threads']} threads); rollout {result['rollout_ms']:.2f} ms; "
                   f"ratio {result['ratio']:.1f} rollout-equivalents")
     elif args.command == "paper":
-        bar = ProgressBar(9, "paper cases")
-        results = benchmarks.paper_benchmark(args.pipeline, progress=lambda done, note: bar.update(done, note))
+        bar = progress_bar(9, "paper cases", "case")
+        results = benchmarks.paper_benchmark(args.pipeline, progress=lambda done, note: advance(bar, done, note))
         bar.close()
         paths = benchmarks.write_paper_outputs(results, args.out)
         if args.json:
@@ -110,17 +119,12 @@ def main(argv: list[str] | None = None) -> int:
 
         settings = load_settings()
         goals, refused = targets_module.draw_goals(args.n, args.seed, settings)
-        work = targets_module.jobs(goals, args.models, args.perturb)
-        bar = ProgressBar(len(work), "targets")
-        finished = []
-
-        def progress(record):
-            finished.append(record)
-            bar.update(len(finished), f"goal {record['goal']} {record['contact_model']}: "
-                                      f"{'ok' if record['success'] else 'miss'}")
-
-        records = targets_module.run(work, settings, progress)
-        bar.close()
+        per_task = sweep.task_settings(settings)
+        jobs = [(f"goal{goal.index:03d}-{model}-{perturbation}", targets_module.solve_goal,
+                 (goal, model, per_task, perturbation))
+                for goal, model, perturbation in targets_module.jobs(goals, args.models, args.perturb)]
+        records = sweep.run_sweep(jobs, workers=args.workers, address=args.address, out=args.out / f"seed{args.seed}",
+                                  label="targets")
         summary = targets_module.report(records, refused)
         paths = targets_module.write_outputs(records, summary, args.out)
         if args.json:
@@ -133,8 +137,8 @@ def main(argv: list[str] | None = None) -> int:
             else list(studies.VARIANTS)
         cases = studies.SWEEP_CASES[2:3] if args.quick else studies.SWEEP_CASES
         total = sum(len(cases) for v in variants for m in studies.MODELS if m in v.models)
-        bar = ProgressBar(total, "speed vs error")
-        records = studies.speed_vs_error(variants, cases, progress=lambda done, note: bar.update(done, note))
+        bar = progress_bar(total, "speed vs error", "solve")
+        records = studies.speed_vs_error(variants, cases, progress=lambda done, note: advance(bar, done, note))
         bar.close()
         summary = studies.speed_vs_error_summary(records)
         args.out.mkdir(parents=True, exist_ok=True)
@@ -152,8 +156,8 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown cases {unknown}; choose from {sorted(known)}")
         names = args.cases or list(known)
-        bar = ProgressBar(len(names) * len(args.models), "hard cases")
-        records = studies.hard_cases(args.models, names, args.repeat, progress=lambda d, n: bar.update(d, n))
+        bar = progress_bar(len(names) * len(args.models), "hard cases", "case")
+        records = studies.hard_cases(args.models, names, args.repeat, progress=lambda d, n: advance(bar, d, n))
         bar.close()
         args.out.mkdir(parents=True, exist_ok=True)
         report = studies.hard_report(records)
@@ -162,8 +166,8 @@ def main(argv: list[str] | None = None) -> int:
         studies.write_csv(args.out / "hard_cases.csv", records)
         print(json.dumps(records) if args.json else report)
     elif args.command == "collisions":
-        bar = ProgressBar(18, "collisions")
-        result = studies.collision_cost(progress=lambda d, n: bar.update(d, n))
+        bar = progress_bar(18, "collisions", "run")
+        result = studies.collision_cost(progress=lambda d, n: advance(bar, d, n))
         bar.close()
         args.out.mkdir(parents=True, exist_ok=True)
         report = studies.collision_report(result)
@@ -173,8 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command == "figures":
         from cito_ros import figures as figure_module
 
-        bar = ProgressBar(5, "figures")
-        paths = figure_module.figures(args.out, progress=lambda d, n: bar.update(d, n))
+        bar = progress_bar(5, "figures", "figure")
+        paths = figure_module.figures(args.out, progress=lambda d, n: advance(bar, d, n))
         bar.close()
         print("written: " + ", ".join(str(p) for p in paths))
     return 0

@@ -1,6 +1,6 @@
-"""cito-demo: the main job. Starts the planner node, calls /cito/plan_push from a
-client in this (separate) process for the default scene (VSCM, the configured
-beta, the object pushed task.push_distance_m along +x), prints a summary,
+"""cito-demo: the main job. Starts the planner node, sends a /cito/plan_push action goal from a
+client in this (separate) process for the default scene (VSCM, the configured beta, the object
+pushed task.push_distance_m along +x), shows the feedback as a progress bar, prints a summary,
 leaves the bag, stops the node and exits 0 when a plan came back.
 
     cito-demo [--contact-model {cccm,scm,vscm}] [--bag-directory DIR] [--timeout S]
@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from cito_ros.cli.progress import ProgressBar
+from cito_ros.cli.progress import advance, progress_bar
 from cito_ros.contact_models import CONTACT_MODELS
 from cito_ros.scene import TABLE_TOP_Z_M
 from cito_ros.settings import load_settings
@@ -47,36 +47,43 @@ def main(argv: list[str] | None = None) -> int:
 
 def _call(args) -> int:
     import rclpy
-    from cito_msgs.msg import SolverProgress
-    from cito_msgs.srv import PlanPush
+    from cito_msgs.action import PlanPush
+    from rclpy.action import ActionClient
 
     settings = load_settings()
     x, y = settings.scene.object.position_m
-    request = PlanPush.Request()
-    request.target_pose.position.x = x + settings.task.push_distance_m
-    request.target_pose.position.y = y
-    request.target_pose.position.z = TABLE_TOP_Z_M + settings.scene.object.half_size_m
-    request.target_pose.orientation.w = 1.0
-    request.contact_model = args.contact_model
+    goal = PlanPush.Goal()
+    goal.target_pose.position.x = x + settings.task.push_distance_m
+    goal.target_pose.position.y = y
+    goal.target_pose.position.z = TABLE_TOP_Z_M + settings.scene.object.half_size_m
+    goal.contact_model = args.contact_model
 
     rclpy.init()
     client_node = rclpy.create_node("cito_demo_client")
     try:
-        client = client_node.create_client(PlanPush, "/cito/plan_push")
-        if not client.wait_for_service(timeout_sec=30.0):
+        client = ActionClient(client_node, PlanPush, "/cito/plan_push")
+        if not client.wait_for_server(timeout_sec=30.0):
             print("cito-demo: the planner node did not come up", file=sys.stderr)
             return 1
-        bar = ProgressBar(None, f"planning ({args.contact_model}), iteration")
-        client_node.create_subscription(SolverProgress, "/cito/progress",
-                                        lambda m: bar.update(m.iteration, f"cost {m.cost:.4g}"), 100)
+        bar = progress_bar(None, f"planning ({args.contact_model})", "it")
+
+        def feedback(message) -> None:
+            f = message.feedback
+            advance(bar, f.iteration, f"{f.stage}, best executed error {100 * f.best_executed_position_error_m:.2f} cm")
+
         started = time.monotonic()
-        future = client.call_async(request)
+        sent = client.send_goal_async(goal, feedback_callback=feedback)
+        rclpy.spin_until_future_complete(client_node, sent, timeout_sec=30.0)
+        if not sent.done() or not sent.result().accepted:
+            print("cito-demo: the goal was not accepted", file=sys.stderr)
+            return 1
+        future = sent.result().get_result_async()
         rclpy.spin_until_future_complete(client_node, future, timeout_sec=args.timeout)
         bar.close()
         if not future.done():
-            print(f"cito-demo: no answer within {args.timeout} s", file=sys.stderr)
+            print(f"cito-demo: no result within {args.timeout} s", file=sys.stderr)
             return 1
-        r = future.result()
+        r = future.result().result
         m = r.metrics
         print(f"plan-push ({args.contact_model}, beta {settings.beta:g}): status {r.status} "
               f"({'SUCCESS' if r.success else 'no success'}) {r.message}")

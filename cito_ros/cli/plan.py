@@ -1,6 +1,6 @@
 """cito-plan: plan one push with a chosen contact model.
 
-    cito-plan [--contact-model {cccm,scm,vscm}] [--beta B] [--target X Y YAW] [--scene NAME]
+    cito-plan [--contact-model {cccm,scm,vscm}] [--beta B] [--target X Y YAW] [--object X Y YAW] [--scene NAME]
               [--pipeline {physical,paper}] [--max-iter N] [--time-limit S] [--json]
 
 With --json, one JSON object on stdout: the plan's summary, or {"status": "invalid_request",
@@ -12,7 +12,7 @@ import argparse
 import json
 import sys
 
-from cito_ros.cli.progress import ProgressBar
+from cito_ros.cli.progress import advance, progress_bar
 from cito_ros.contact_models import CONTACT_MODELS
 from cito_ros.planner import plan_push
 from cito_ros.results import IterationLog, PlanResult
@@ -47,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--beta", type=float, default=None, help="start pose q0(beta) (default: the config's)")
     parser.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "YAW"), default=None,
                         help="object goal: x, y (m, world) and yaw (rad); default the config's push along +x")
+    parser.add_argument("--object", type=float, nargs=3, metavar=("X", "Y", "YAW"), default=None,
+                        help="where the object is now: x, y (m, world) and yaw (rad); default the scene's pose")
     parser.add_argument("--scene", default=None, help="scene in config/scenes (default: the config's)")
     parser.add_argument("--pipeline", choices=("physical", "paper"), default=None,
                         help="physical (default): executable plans; paper: exactly the paper's problem")
@@ -59,16 +61,18 @@ def main(argv: list[str] | None = None) -> int:
         overrides = {"solver.max_iter": args.max_iter, "solver.time_limit_s": args.time_limit,
                      "pipeline": args.pipeline}
         settings = load_settings().with_overrides({k: v for k, v in overrides.items() if v is not None})
-        bar = None if args.json else ProgressBar(None, "solving, iteration")
+        bar = None if args.json else progress_bar(None, "solving", "it")
 
         def progress(entry: IterationLog) -> None:
             if bar is not None:
-                bar.update(entry.iteration, f"{entry.stage} cost {entry.cost:.4g}")
+                advance(bar, entry.iteration, f"{entry.stage} cost {entry.cost:.4g}")
 
         target = None if args.target is None else args.target[:2]
         yaw = 0.0 if args.target is None else args.target[2]
         result = plan_push(args.contact_model, args.beta, target_position_m=target, target_yaw_rad=yaw,
-                           scene=args.scene, settings=settings, iteration_callback=progress)
+                           scene=args.scene, settings=settings,
+                           object_pose=None if args.object is None else (args.object[:2], args.object[2]),
+                           iteration_callback=progress)
         if bar is not None:
             bar.close()
     except ValueError as error:

@@ -1,46 +1,18 @@
-"""A one-line progress display on stderr: redrawn in place on a terminal, otherwise
-a log line at most every `log_interval_s` (and at the end)."""
+"""Terminal progress for the command-line tools, through tqdm (on stderr; redrawn in place on a
+terminal, a line every few seconds in a log)."""
 from __future__ import annotations
 
 import sys
-import time
-from typing import TextIO
+
+from tqdm import tqdm
 
 
-class ProgressBar:
-    def __init__(self, total: int | None, label: str, stream: TextIO | None = None, width: int = 28,
-                 log_interval_s: float = 2.0):
-        self.total, self.label, self.width = total, label, width
-        self.stream = stream or sys.stderr
-        self.tty = self.stream.isatty()
-        self.log_interval_s = log_interval_s
-        self.started = time.perf_counter()
-        self.last_log = -float("inf")
-        self.line = ""
+def progress_bar(total: int | None, label: str, unit: str) -> tqdm:
+    return tqdm(total=total, desc=label, unit=unit, dynamic_ncols=True, file=sys.stderr,
+                mininterval=0.2 if sys.stderr.isatty() else 5.0)
 
-    def update(self, done: int, note: str = "") -> None:
-        elapsed = time.perf_counter() - self.started
-        if self.total:
-            done = min(done, self.total)
-            filled = int(self.width * done / self.total)
-            counter = f"[{'#' * filled}{'.' * (self.width - filled)}] {done}/{self.total}"
-        else:
-            counter = f"{done}"
-        self.line = f"{self.label} {counter} {elapsed:6.1f} s {note}"
-        if self.tty:
-            self.stream.write("\r" + self.line[:150].ljust(150))
-            self.stream.flush()
-        elif elapsed - self.last_log >= self.log_interval_s:
-            self._log()
 
-    def _log(self) -> None:
-        self.stream.write(self.line + "\n")
-        self.stream.flush()
-        self.last_log = time.perf_counter() - self.started
-
-    def close(self) -> None:
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
-        elif self.line:
-            self._log()
+def advance(bar: tqdm, done: int, note: str = "") -> None:
+    """Move `bar` to `done` (the sweeps report a count, the solvers an iteration number)."""
+    bar.set_postfix_str(note, refresh=False)
+    bar.update(done - bar.n)
