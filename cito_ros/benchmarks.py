@@ -13,11 +13,11 @@ from typing import Callable
 
 import numpy as np
 
-from cito_ros import oracle
+from cito_ros import oracle, sweep
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.planner import plan_push
 from cito_ros.scene import Scene
-from cito_ros.settings import load_settings
+from cito_ros.settings import Settings, load_settings
 from cito_ros.simulator import Simulator
 
 
@@ -130,22 +130,23 @@ TABLES = (
 PAPER_CASES = tuple((model, beta) for model in PAPER_MODELS for beta in (5, 6, 7))
 
 
-def paper_benchmark(pipeline: str = "paper", progress: Callable[[int, str], None] | None = None) -> list[dict]:
+def paper_case(model: str, beta: int, settings: Settings) -> dict:
+    """One of the nine cases: the plan's summary."""
+    return {"pipeline": settings.pipeline, **plan_push(model, beta, settings=settings).summary()}
+
+
+def paper_benchmark(pipeline: str = "paper", *, workers: int | None = None, address: str | None = None,
+                    out: Path | None = None) -> list[dict]:
     """Solve the paper's nine cases (3 contact models x beta 5, 6, 7) with a pipeline: 'paper' is
-    exactly the paper's problem (Tables I-IV), 'physical' the planner's own."""
-    settings = load_settings().with_overrides({"pipeline": pipeline})
-    results = []
-    for index, (model, beta) in enumerate(PAPER_CASES):
-        if progress:
-            progress(index, f"{model} beta={beta}")
-        results.append({"pipeline": pipeline, **plan_push(model, beta, settings=settings).summary()})
-    if progress:
-        progress(len(PAPER_CASES), "done")
-    return results
+    exactly the paper's problem (Tables I-IV), 'physical' the planner's own. A sweep (cito_ros.sweep)."""
+    settings = sweep.settings_for(load_settings().with_overrides({"pipeline": pipeline}), workers)
+    jobs = [(f"{pipeline}-{model}-beta{beta}", paper_case, (model, beta, settings)) for model, beta in PAPER_CASES]
+    return sweep.run_sweep(jobs, workers=workers, address=address, out=out, label="paper cases")
 
 
 def paper_tables(results: list[dict]) -> str:
     """Markdown: Tables I-IV of the paper side by side with ours, plus the executed error."""
+    results, failed = sweep.split_failures(results)
     by_case = {(r["contact_model"], int(r["beta"])): r for r in results}
     lines = []
     for number, title, key, unit, digits in TABLES:
@@ -166,6 +167,7 @@ def paper_tables(results: list[dict]) -> str:
         "", "Success (executed without the virtual force within 2 cm, 0.15 rad and the joint speed limits): " + ", ".join(
         f"{r['contact_model']} beta={int(r['beta'])}: {'yes' if r['success'] else 'no'} ({r['status']})" for r in results),
         "", f"Median solve time over the {len(results)} cases: {statistics.median(r['solve_time_s'] for r in results):.2f} s", ""]
+    lines += [f"- {r['key']}: failed: {r['error']}" for r in failed]
     return "\n".join(lines)
 
 
@@ -179,7 +181,7 @@ def write_paper_outputs(results: list[dict], out_dir: Path) -> list[Path]:
         writer.writerow(["contact_model", "beta", "initial_distance_m", "status", "success", "planned_success",
                          "iterations", "max_joint_speed_ratio"]
                         + [f"{key}{suffix}" for _, _, key, _, _ in TABLES for suffix in ("", "_paper")])
-        for r in results:
+        for r in sweep.split_failures(results)[0]:
             beta = int(r["beta"])
             row = [r["contact_model"], beta, r["initial_distance_m"], r["status"], r["success"], r["planned_success"],
                    r["iterations"], r["max_joint_speed_ratio"]]

@@ -10,17 +10,16 @@ import math
 import statistics
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from cito_ros import benchmarks
+from cito_ros import benchmarks, sweep
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.cases import Case, load_cases, run_case
-from cito_ros.settings import load_settings
+from cito_ros.settings import Settings, load_settings
 
 MODELS = ("cccm", "scm", "vscm")
-Progress = Callable[[int, str], None]
 
 
 def _median(values: Iterable[float | None]) -> float | None:
@@ -47,31 +46,31 @@ def _fmt(value: float | int | None, scale: float = 1.0, digits: int = 2) -> str:
 
 # ---------------------------------------------------------------------------------- hard cases
 
-def hard_cases(models: Iterable[str] = MODELS, names: Iterable[str] | None = None, repeat: int = 1,
-               progress: Progress | None = None) -> list[dict[str, Any]]:
-    """Run the cases of config/hard_cases.yaml with each contact model. With repeat >= 2 every
-    run is repeated and `identical_on_repeat` says whether the plans were bit-identical."""
+def hard_case(case: Case, model: str, repeat: int, settings: Settings) -> dict[str, Any]:
+    """One hard case with one model; with repeat >= 2 run again, and `identical_on_repeat` says whether
+    the plans were bit-identical."""
+    record, result = run_case(case, model, settings)
+    if repeat >= 2:
+        again, second = run_case(case, model, settings)
+        record["identical_on_repeat"] = (result is None and second is None) or (
+            result is not None and second is not None
+            and np.array_equal(result.knot_torques_Nm, second.knot_torques_Nm)
+            and again["position_error_m"] == record["position_error_m"])
+    return record
+
+
+def hard_cases(models: Iterable[str] = MODELS, names: Iterable[str] | None = None, repeat: int = 1, *,
+               workers: int | None = None, address: str | None = None, out: Path | None = None) -> list[dict[str, Any]]:
+    """The cases of config/hard_cases.yaml with each contact model, as a sweep (cito_ros.sweep)."""
     cases = load_cases()
-    selected = [cases[n] for n in (names or cases)]
-    runs = [(case, model) for case in selected for model in models]
-    records = []
-    for index, (case, model) in enumerate(runs):
-        if progress:
-            progress(index, f"{case.name} {model}")
-        record, result = run_case(case, model)
-        if repeat >= 2:
-            again, second = run_case(case, model)
-            record["identical_on_repeat"] = (result is None and second is None) or (
-                result is not None and second is not None
-                and np.array_equal(result.knot_torques_Nm, second.knot_torques_Nm)
-                and again["position_error_m"] == record["position_error_m"])
-        records.append(record)
-    if progress:
-        progress(len(runs), "done")
-    return records
+    settings = sweep.settings_for(load_settings(), workers)
+    jobs = [(f"{name}-{model}", hard_case, (cases[name], model, repeat, settings))
+            for name in (names or cases) for model in models]
+    return sweep.run_sweep(jobs, workers=workers, address=address, out=out, label="hard cases")
 
 
 def hard_report(records: list[dict[str, Any]]) -> str:
+    records, failed = sweep.split_failures(records)
     models = list(dict.fromkeys(r["contact_model"] for r in records))
     cases = list(dict.fromkeys(r["case"] for r in records))
     by = {(r["case"], r["contact_model"]): r for r in records}
@@ -107,6 +106,7 @@ def hard_report(records: list[dict[str, Any]]) -> str:
     if invalid:
         lines += ["", "Cases that cannot be posed (status invalid_request, no exception):"]
         lines += [f"- {case}: {message}" for case, message in invalid]
+    lines += [f"- {r['key']}: failed: {r['error']}" for r in failed]
     return "\n".join(lines) + "\n"
 
 
@@ -142,27 +142,29 @@ SWEEP_CASES = (
 )
 
 
+def variant_case(variant: Variant, case: Case, model: str, settings: Settings) -> dict[str, Any]:
+    """One case with one model under a variant's settings."""
+    run = replace(case, scene=variant.scene or case.scene, knots=variant.knots or case.knots)
+    record, _ = run_case(run, model, settings.with_overrides(variant.overrides))
+    return {"variant": variant.name, **record}
+
+
 def speed_vs_error(variants: Iterable[Variant] = VARIANTS, cases: Iterable[Case] = SWEEP_CASES,
-                   models: Iterable[str] = MODELS, progress: Progress | None = None) -> list[dict[str, Any]]:
-    settings = load_settings()
-    runs = [(v, c, m) for v in variants for m in models if m in v.models for c in cases]
-    records = []
-    for index, (variant, case, model) in enumerate(runs):
-        if progress:
-            progress(index, f"{variant.name}: {model} {case.name}")
-        run = replace(case, scene=variant.scene or case.scene, knots=variant.knots or case.knots)
-        record, _ = run_case(run, model, settings.with_overrides(variant.overrides))
-        records.append({"variant": variant.name, **record})
-    if progress:
-        progress(len(runs), "done")
-    return records
+                   models: Iterable[str] = MODELS, *, workers: int | None = None, address: str | None = None,
+                   out: Path | None = None) -> list[dict[str, Any]]:
+    """Every variant, model and case, as a sweep (cito_ros.sweep); solve times are those of one task."""
+    settings = sweep.settings_for(load_settings(), workers)
+    jobs = [(f"{v.name}-{m}-{c.name}", variant_case, (v, c, m, settings))
+            for v in variants for m in models if m in v.models for c in cases]
+    return sweep.run_sweep(jobs, workers=workers, address=address, out=out, label="speed vs error")
 
 
 def speed_vs_error_summary(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (contact model, variant): medians over the cases, and whether it is on the model's
-    Pareto front of (median solve time, median executed error) and of (time, median planned error)."""
+    Pareto front of (median solve time, median executed error) and of (time, median planned error).
+    Failed solves (cito_ros.sweep) are left out."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for r in records:
+    for r in sweep.split_failures(records)[0]:
         groups.setdefault((r["contact_model"], r["variant"]), []).append(r)
     rows = [{"contact_model": model, "variant": variant,
              "median_solve_time_s": _median(r["solve_time_s"] for r in rs),
@@ -180,7 +182,7 @@ def speed_vs_error_summary(records: list[dict[str, Any]]) -> list[dict[str, Any]
     return rows
 
 
-def speed_vs_error_table(summary: list[dict[str, Any]]) -> str:
+def speed_vs_error_table(summary: list[dict[str, Any]], failed: list[dict[str, Any]] = ()) -> str:
     lines = ["| contact model | setting | median solve time (s) | median executed error (cm) | "
              "median planned error (cm) | success | Pareto (executed / planned) |", "|---|---|---|---|---|---|---|"]
     for row in sorted(summary, key=lambda r: (r["contact_model"], r["median_solve_time_s"])):
@@ -188,6 +190,7 @@ def speed_vs_error_table(summary: list[dict[str, Any]]) -> str:
         lines.append(f"| {row['contact_model'].upper()} | {row['variant']} | {_fmt(row['median_solve_time_s'])} | "
                      f"{_fmt(row['median_position_error_m'], 100)} | {_fmt(row['median_planned_position_error_m'], 100)} "
                      f"| {row['success_rate']:.0%} | {front} |")
+    lines += [f"- {r['key']}: failed: {r['error']}" for r in failed]
     return "\n".join(lines) + "\n"
 
 
@@ -236,9 +239,15 @@ def speed_vs_error_plot(summary: list[dict[str, Any]], path: Path) -> Path:
 
 # ------------------------------------------------------------------------------- collisions
 
-def collision_cost(repeats: int = 50, progress: Progress | None = None) -> dict[str, Any]:
+def scene_case(case: Case, model: str, settings: Settings) -> dict[str, Any]:
+    record, _ = run_case(case, model, settings)
+    return {"scene": case.scene, **record}
+
+
+def collision_cost(repeats: int = 50, *, workers: int | None = None, address: str | None = None,
+                   out: Path | None = None) -> dict[str, Any]:
     """The minimal scene (the pair list) against every geom pair colliding: rollout and gradient
-    speed, and solve time and errors on the paper's nine cases."""
+    speed (in this process, first), and solve time and errors on the paper's nine cases (a sweep)."""
     settings = load_settings()
     scenes = {"minimal": settings.scene.source, "all collisions": "all_collisions"}
     timing = {}
@@ -259,15 +268,11 @@ def collision_cost(repeats: int = 50, progress: Progress | None = None) -> dict[
             "explicit_pairs": int(scene.model.npair),
         }
     cases = [Case(f"paper beta={b}", beta=float(b), scene=s) for s in scenes.values() for b in (5, 6, 7)]
-    records = []
-    runs = [(case, model) for case in cases for model in MODELS]
-    for index, (case, model) in enumerate(runs):
-        if progress:
-            progress(index, f"{case.scene} {model} {case.name}")
-        record, _ = run_case(case, model)
-        records.append({"scene": case.scene, **record})
-    if progress:
-        progress(len(runs), "done")
+    solve_settings = sweep.settings_for(settings, workers)
+    jobs = [(f"{case.scene}-{model}-{case.name}", scene_case, (case, model, solve_settings))
+            for case in cases for model in MODELS]
+    records, failed = sweep.split_failures(sweep.run_sweep(jobs, workers=workers, address=address, out=out,
+                                                           label="collisions"))
     for label, scene_name in scenes.items():
         rows = [r for r in records if r["scene"] == scene_name]
         timing[label].update(
@@ -275,7 +280,7 @@ def collision_cost(repeats: int = 50, progress: Progress | None = None) -> dict[
             median_planned_position_error_m=_median(r["planned_position_error_m"] for r in rows),
             median_position_error_m=_median(r["position_error_m"] for r in rows),
             successes=sum(r["success"] for r in rows), cases=len(rows))
-    return {"scenes": timing, "runs": records}
+    return {"scenes": timing, "runs": records, "failures": failed}
 
 
 def collision_report(result: dict[str, Any]) -> str:
@@ -293,4 +298,5 @@ def collision_report(result: dict[str, Any]) -> str:
         ratio = f"{b / a:.2f}" if isinstance(a, (int, float)) and a and b is not None else "-"
         lines.append(f"| {label} | {_fmt(a, scale)} | {_fmt(b, scale)} | {ratio} |")
     lines.append(f"| task successes | {minimal['successes']}/{minimal['cases']} | {full['successes']}/{full['cases']} | |")
+    lines += [f"- {r['key']}: failed: {r['error']}" for r in result["failures"]]
     return "\n".join(lines) + "\n"

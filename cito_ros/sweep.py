@@ -6,18 +6,20 @@ the order they finish in, so a report never depends on the number of workers:
 
 - Ray: `address` joins a running cluster ("auto" or host:port); without it an embedded local Ray
   sized to this machine starts and stops with the sweep (no dashboard, localhost only). Every task
-  plans with one linearization thread and its starts one after the other (results are the same bits
-  as with more threads; tested), so the workers do not oversubscribe the cores.
+  plans with one linearization thread and its starts one after the other (`settings_for`; results
+  are the same bits as with more threads, tested), so the workers do not oversubscribe the cores.
+- In process (workers=0): the jobs one after the other, with the settings as configured (threaded).
 - Failures: a job that raises, or whose worker dies, becomes a record {"key", "failed": true,
   "error"}; the sweep goes on and its report says so.
 - Resumption: with `out`, each finished record is written to out/cases/<key>.json as it arrives, and
-  a rerun with the same `out` loads those and runs only the rest.
+  a rerun with the same `out` loads those and runs only the rest (failed cases again too).
 """
 from __future__ import annotations
 
 import json
 import os
 import re
+import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -29,9 +31,14 @@ Job = tuple[str, Callable[..., dict[str, Any]], tuple]
 TASK_OVERRIDES = {"gradient.threads": 1, "stages.parallel": False}
 
 
-def task_settings(settings: Settings) -> Settings:
-    """The settings a sweep task plans with: one thread of its own."""
-    return settings.with_overrides(TASK_OVERRIDES)
+def settings_for(settings: Settings, workers: int | None) -> Settings:
+    """The settings a sweep's solves plan with: one thread each on Ray, as configured in process."""
+    return settings if workers == 0 else settings.with_overrides(TASK_OVERRIDES)
+
+
+def split_failures(records: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """(the records of finished solves, the failure records) of a sweep."""
+    return [r for r in records if not r.get("failed")], [r for r in records if r.get("failed")]
 
 
 def _case_path(out: Path, key: str) -> Path:
@@ -39,7 +46,8 @@ def _case_path(out: Path, key: str) -> Path:
 
 
 def _failure(key: str, error: BaseException | str) -> dict[str, Any]:
-    return {"key": key, "failed": True, "error": error if isinstance(error, str) else repr(error)}
+    text = error if isinstance(error, str) else f"{type(error).__name__}: {error}".strip().rstrip(":")
+    return {"key": key, "failed": True, "error": " ".join(text.split())[:500]}
 
 
 def run_sweep(jobs: Sequence[Job], *, workers: int | None = None, address: str | None = None,
@@ -57,12 +65,16 @@ def run_sweep(jobs: Sequence[Job], *, workers: int | None = None, address: str |
             if path.is_file():
                 done[key] = json.loads(path.read_text())
     pending = [job for job in jobs if job[0] not in done]
-    bar = tqdm(total=len(jobs), initial=len(done), desc=label, unit="solve", dynamic_ncols=True)
+    if done:
+        tqdm.write(f"{label}: {len(done)} of {len(jobs)} cases already in {out / 'cases'} (delete them to rerun)",
+                   file=sys.stderr)
+    bar = tqdm(total=len(jobs), initial=len(done), desc=label, unit="solve", dynamic_ncols=True,
+               mininterval=0.2 if sys.stderr.isatty() else 5.0)
 
     def finished(key: str, record: dict[str, Any]) -> None:
         record = {"key": key, **record}
         done[key] = record
-        if out is not None:
+        if out is not None and not record.get("failed"):
             path = _case_path(out, key)
             partial = path.with_suffix(".partial")
             partial.write_text(json.dumps(record))

@@ -78,13 +78,15 @@ def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "
             "perturbation": perturbation, **summary}
 
 
-def jobs(goals: Iterable[Goal], models: Iterable[str], perturbed: int = 0) -> list[tuple[Goal, str, str]]:
-    """Every goal with every model, and the first `perturbed` goals again under each perturbation."""
+def jobs(goals: Iterable[Goal], models: Iterable[str], settings: Settings, perturbed: int = 0) -> list:
+    """The sweep's jobs (cito_ros.sweep): every goal with every model, and the first `perturbed` goals
+    again under each perturbation."""
     goals = list(goals)
-    out = [(goal, model, "none") for goal in goals for model in models]
-    out += [(goal, model, name) for goal in goals[:perturbed] for model in models for name in PERTURBATIONS
-            if name != "none"]
-    return out
+    runs = [(goal, model, "none") for goal in goals for model in models]
+    runs += [(goal, model, name) for goal in goals[:perturbed] for model in models for name in PERTURBATIONS
+             if name != "none"]
+    return [(f"goal{goal.index:03d}-{model}-{name}", solve_goal, (goal, model, settings, name))
+            for goal, model, name in runs]
 
 
 def _percentile(values: list[float], q: float) -> float | None:
@@ -202,6 +204,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
+    records = [r for r in records if not r.get("failed") and r["perturbation"] == "none"]
     figure, axis = plt.subplots(figsize=(7.5, 5))
     for model in dict.fromkeys(r["contact_model"] for r in records):
         rows = [r for r in records if r["contact_model"] == model]

@@ -127,3 +127,13 @@ def test_bench_collisions(tmp_path):
     comparison = json.loads(result.stdout)["scenes"]
     assert comparison["minimal"]["explicit_pairs"] == 11 and comparison["all collisions"]["explicit_pairs"] == 0
     assert comparison["all collisions"]["geoms_in_broad_phase"] > comparison["minimal"]["geoms_in_broad_phase"] == 0
+
+
+def test_the_main_job_cancelled_returns_the_best_plan_so_far(tmp_path):
+    result = run("cito-demo", "--cancel-after", "3", "--bag-directory", str(tmp_path), timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "cancelling the goal after 3 s" in result.stderr
+    assert "status 5 (no success) the solve was cancelled" in result.stdout
+    bags = [p for p in tmp_path.iterdir()]
+    assert len(bags) == 1 and f"bag                {bags[0]}" in result.stdout
+    assert (bags[0] / "metadata.yaml").is_file()

@@ -3,11 +3,16 @@
     cito-bench rollout [--json]                   native vs Python-oracle rollout speed
     cito-bench gradient [--json]                  full-gradient time in rollout-equivalents
     cito-bench paper [--pipeline P] [--json] [--out DIR]   the paper's nine cases, Tables I-IV
-    cito-bench targets [--n 50] [--seed S] [--models M ...] [--json] [--out DIR]   random pushes
+    cito-bench targets [--n 50] [--seed S] [--models M ...] [--perturb K] [--json] [--out DIR]   random pushes
     cito-bench speed-vs-error [--out DIR]         solver effort against error, with a plot
     cito-bench hard [--json] [--out DIR]          cases that stress the numerics
     cito-bench collisions [--json] [--out DIR]    the minimal scene against all collisions
     cito-bench figures [--out DIR]                snapshots and plots of planned motions
+
+The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
+embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
+--address ADDR, or one by one in this process with --workers 0; each finished case is written to
+<out>/cases/ as it arrives, and a rerun with the same --out skips those (cito_ros.sweep).
 """
 from __future__ import annotations
 
@@ -59,8 +64,10 @@ def main(argv: list[str] | None = None) -> int:
     paper = commands.add_parser("paper", help="the paper's nine cases and Tables I-IV")
     paper.add_argument("--pipeline", choices=("paper", "physical"), default="paper",
                        help="paper: exactly the paper's problem (Tables I-IV); physical: the planner's own")
-    paper.add_argument("--out", type=Path, default=Path("out/paper"), help="folder for the Markdown and CSV tables")
+    paper.add_argument("--out", type=Path, default=Path("out/paper"),
+                       help="the Markdown and CSV tables, and each finished case as it arrives (a rerun skips those)")
     paper.add_argument("--json", action="store_true", help="print the list of nine result objects")
+    add_sweep_options(paper)
     targets = commands.add_parser("targets", help="seeded random pushes, judged by their execution")
     targets.add_argument("--n", type=positive_int, default=50, help="goals")
     targets.add_argument("--seed", type=int, default=0)
@@ -75,15 +82,18 @@ def main(argv: list[str] | None = None) -> int:
     speed.add_argument("--out", type=Path, default=Path("out/speed_vs_error"))
     speed.add_argument("--quick", action="store_true", help="two settings, one case (a smoke run)")
     speed.add_argument("--json", action="store_true", help="print the per-setting summary")
+    add_sweep_options(speed)
     hard = commands.add_parser("hard", help="cases that stress the numerics")
     hard.add_argument("--out", type=Path, default=Path("out/hard"))
     hard.add_argument("--cases", nargs="+", default=None, help="case names (default: all of config/hard_cases.yaml)")
     hard.add_argument("--models", nargs="+", default=list(studies.MODELS), choices=studies.MODELS)
     hard.add_argument("--repeat", type=positive_int, default=1, help="run each case this many times (2: check identity)")
     hard.add_argument("--json", action="store_true", help="print one object per case and contact model")
+    add_sweep_options(hard)
     collisions = commands.add_parser("collisions", help="minimal collision pairs against all collisions")
     collisions.add_argument("--out", type=Path, default=Path("out/collisions"))
     collisions.add_argument("--json", action="store_true", help="print the comparison")
+    add_sweep_options(collisions)
     figures = commands.add_parser("figures", help="snapshots and plots of planned motions")
     figures.add_argument("--out", type=Path, default=Path("docs/figures"))
     args = parser.parse_args(argv)
@@ -104,9 +114,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{result['threads']} threads); rollout {result['rollout_ms']:.2f} ms; "
                   f"ratio {result['ratio']:.1f} rollout-equivalents")
     elif args.command == "paper":
-        bar = progress_bar(9, "paper cases", "case")
-        results = benchmarks.paper_benchmark(args.pipeline, progress=lambda done, note: advance(bar, done, note))
-        bar.close()
+        results = benchmarks.paper_benchmark(args.pipeline, workers=args.workers, address=args.address, out=args.out)
         paths = benchmarks.write_paper_outputs(results, args.out)
         if args.json:
             print(json.dumps(results))
@@ -119,10 +127,7 @@ def main(argv: list[str] | None = None) -> int:
 
         settings = load_settings()
         goals, refused = targets_module.draw_goals(args.n, args.seed, settings)
-        per_task = sweep.task_settings(settings)
-        jobs = [(f"goal{goal.index:03d}-{model}-{perturbation}", targets_module.solve_goal,
-                 (goal, model, per_task, perturbation))
-                for goal, model, perturbation in targets_module.jobs(goals, args.models, args.perturb)]
+        jobs = targets_module.jobs(goals, args.models, sweep.settings_for(settings, args.workers), args.perturb)
         records = sweep.run_sweep(jobs, workers=args.workers, address=args.address, out=args.out / f"seed{args.seed}",
                                   label="targets")
         summary = targets_module.report(records, refused)
@@ -136,13 +141,10 @@ def main(argv: list[str] | None = None) -> int:
         variants = [v for v in studies.VARIANTS if v.name in ("default", "max_iter 10")] if args.quick \
             else list(studies.VARIANTS)
         cases = studies.SWEEP_CASES[2:3] if args.quick else studies.SWEEP_CASES
-        total = sum(len(cases) for v in variants for m in studies.MODELS if m in v.models)
-        bar = progress_bar(total, "speed vs error", "solve")
-        records = studies.speed_vs_error(variants, cases, progress=lambda done, note: advance(bar, done, note))
-        bar.close()
+        records = studies.speed_vs_error(variants, cases, workers=args.workers, address=args.address, out=args.out)
         summary = studies.speed_vs_error_summary(records)
         args.out.mkdir(parents=True, exist_ok=True)
-        table = studies.speed_vs_error_table(summary)
+        table = studies.speed_vs_error_table(summary, sweep.split_failures(records)[1])
         (args.out / "speed_vs_error.md").write_text(table)
         paths = [studies.write_csv(args.out / "speed_vs_error_runs.csv", records),
                  studies.write_csv(args.out / "speed_vs_error.csv", summary),
@@ -156,9 +158,8 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown cases {unknown}; choose from {sorted(known)}")
         names = args.cases or list(known)
-        bar = progress_bar(len(names) * len(args.models), "hard cases", "case")
-        records = studies.hard_cases(args.models, names, args.repeat, progress=lambda d, n: advance(bar, d, n))
-        bar.close()
+        records = studies.hard_cases(args.models, names, args.repeat, workers=args.workers, address=args.address,
+                                     out=args.out)
         args.out.mkdir(parents=True, exist_ok=True)
         report = studies.hard_report(records)
         (args.out / "hard_cases.md").write_text(report)
@@ -166,9 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         studies.write_csv(args.out / "hard_cases.csv", records)
         print(json.dumps(records) if args.json else report)
     elif args.command == "collisions":
-        bar = progress_bar(18, "collisions", "run")
-        result = studies.collision_cost(progress=lambda d, n: advance(bar, d, n))
-        bar.close()
+        result = studies.collision_cost(workers=args.workers, address=args.address, out=args.out)
         args.out.mkdir(parents=True, exist_ok=True)
         report = studies.collision_report(result)
         (args.out / "collisions.md").write_text(report)

@@ -3,7 +3,7 @@ client in this (separate) process for the default scene (VSCM, the configured be
 pushed task.push_distance_m along +x), shows the feedback as a progress bar, prints a summary,
 leaves the bag, stops the node and exits 0 when a plan came back.
 
-    cito-demo [--contact-model {cccm,scm,vscm}] [--bag-directory DIR] [--timeout S]
+    cito-demo [--contact-model {cccm,scm,vscm}] [--bag-directory DIR] [--timeout S] [--cancel-after S]
 """
 from __future__ import annotations
 
@@ -27,6 +27,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--contact-model", choices=sorted(CONTACT_MODELS), default="vscm")
     parser.add_argument("--bag-directory", type=Path, default=Path("bags"))
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the plan")
+    parser.add_argument("--cancel-after", type=float, default=None, metavar="S",
+                        help="cancel the goal after S seconds (the best plan so far comes back)")
     args = parser.parse_args(argv)
 
     # an isolated graph: a random domain on this host only, unless the caller chose one
@@ -78,6 +80,11 @@ def _call(args) -> int:
             print("cito-demo: the goal was not accepted", file=sys.stderr)
             return 1
         future = sent.result().get_result_async()
+        if args.cancel_after is not None:
+            rclpy.spin_until_future_complete(client_node, future, timeout_sec=args.cancel_after)
+            if not future.done():
+                bar.write(f"cito-demo: cancelling the goal after {args.cancel_after:g} s", file=sys.stderr)
+                sent.result().cancel_goal_async()
         rclpy.spin_until_future_complete(client_node, future, timeout_sec=args.timeout)
         bar.close()
         if not future.done():
