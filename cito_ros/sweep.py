@@ -5,7 +5,7 @@ returns one JSON-serialisable record. `run_sweep` returns the records in the job
 the order they finish in, so a report never depends on the number of workers:
 
 - Ray: `address` joins a running cluster ("auto" or host:port); without it an embedded local Ray
-  sized to this machine starts and stops with the sweep (no dashboard, localhost only). Every task
+  sized to this machine starts and stops with the sweep (no dashboard). Every task
   plans with one linearization thread and its starts one after the other (`settings_for`; results
   are the same bits as with more threads, tested), so the workers do not oversubscribe the cores.
 - In process (workers=0): the jobs one after the other, with the settings as configured (threaded).
