@@ -10,12 +10,12 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 from builtin_interfaces.msg import Duration
-from geometry_msgs.msg import Point, Vector3
+from geometry_msgs.msg import Vector3
 from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from cito_ros.ros_messages import pose_msg, time_msg
+from cito_ros.ros_messages import point_msg, pose_msg, time_msg
 from cito_ros.scene import ARM_JOINTS, Scene
 from cito_ros.simulator import Trajectory
 
@@ -97,13 +97,9 @@ def _contact_markers(point: np.ndarray, force: np.ndarray | None, header: Header
     tip = point + FORCE_ARROW_M_PER_N * force
     arrow = Marker(header=header, ns=CONTACT_NS, id=1, type=Marker.ARROW, action=Marker.ADD,
                    pose=pose_msg(np.zeros(3), IDENTITY),
-                   points=[_point(point), _point(tip)], scale=Vector3(x=0.008, y=0.016, z=0.02), color=yellow)
+                   points=[point_msg(point), point_msg(tip)], scale=Vector3(x=0.008, y=0.016, z=0.02), color=yellow)
     return [sphere, arrow]
 
 
 def _header(stamp_ns: int, frame_id: str) -> Header:
     return Header(stamp=time_msg(stamp_ns), frame_id=frame_id)
-
-
-def _point(p: np.ndarray) -> Point:
-    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))

@@ -145,9 +145,13 @@ def duration_msg(seconds: float) -> Duration:
     return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
+def point_msg(p: np.ndarray) -> Point:
+    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
 def pose_msg(position: np.ndarray, quaternion_wxyz: np.ndarray) -> Pose:
     w, x, y, z = (float(v) for v in quaternion_wxyz)
-    return Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
+    return Pose(position=point_msg(position),
                 orientation=Quaternion(x=x, y=y, z=z, w=w))
 
 
@@ -217,8 +221,7 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
             contact_count=int(trajectory.contact_count[t]),
             contact_wrench=Wrench(force=vector(trajectory.contact_force_N[t]),
                                   torque=vector(trajectory.contact_torque_Nm[t])),
-            contact_point=Point(x=float(trajectory.contact_point_m[t][0]), y=float(trajectory.contact_point_m[t][1]),
-                                z=float(trajectory.contact_point_m[t][2]))))
+            contact_point=point_msg(trajectory.contact_point_m[t])))
     poses = [PoseStamped(header=Header(stamp=time_msg(stamps[t]), frame_id=frame_id),
                          pose=pose_msg(trajectory.object_position_m[t], trajectory.object_quaternion[t]))
              for t in range(steps + 1)]
