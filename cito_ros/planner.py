@@ -87,6 +87,7 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
     position_error, orientation_error = errors(trajectory)
     planned_position_error, planned_orientation_error = errors(planned)
     speed_ratio = float(np.max(np.abs(trajectory.qdot) / discovery.scene.velocity_limit))
+    range_excess = discovery.scene.joint_range_excess(trajectory.q)
     status = outcome.status
     if not (trajectory.finite and planned.finite) or trajectory.warnings or planned.warnings:
         status = Status.NUMERICAL_ERROR
@@ -100,6 +101,7 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         planned_orientation_error_rad=planned_orientation_error,
         physical_inaccuracy_Ns=float(simulator.timestep_s * np.sum(planned.gamma_N)),
         max_joint_speed_ratio=speed_ratio,
+        joint_range_excess_rad=range_excess,
         final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(
             executor.evaluate(executor.with_torques(outcome.torques)).states[-1])[:3])),
         solve_time_s=outcome.solve_time_s,
@@ -107,7 +109,7 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         status=status,
         success=bool(usable and position_error < settings.task.success_position_error_m
                      and orientation_error < settings.task.success_orientation_error_rad
-                     and speed_ratio <= settings.limits.max_joint_speed_ratio),
+                     and speed_ratio <= settings.limits.max_joint_speed_ratio and range_excess == 0.0),
         planned_success=bool(usable and planned_position_error < settings.task.planned_success_position_error_m),
     )
     return PlanResult(

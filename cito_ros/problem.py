@@ -211,13 +211,14 @@ class PushProblem:
 
     def _terminal_residuals(self, final_state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residuals of the final state, and their derivatives with respect to it (tangent space):
-        position (3) and Euler angles (3) against the target, then the object's velocity (6)."""
+        position (3) and Euler angles (3) against the target, then the object's velocity (6), then the
+        joint speeds beyond their margin (7: the running term sees the steps' start states only)."""
         w, c, nv = self.weights, self.cost, self.scene.model.nv
         dof = self.scene.object_dof_adr
         object_qpos = self.scene.object_qpos(final_state)
         position_error, angle_error = self.task.pose_error(object_qpos)
         position_root, angle_root = math.sqrt(w.w1) / self.position_scale, math.sqrt(w.w2)
-        rows = 12 if c.object_velocity else 6
+        rows = 6 + (6 if c.object_velocity else 0) + (7 if c.joint_speed else 0)
         residuals, jacobian = np.zeros(rows), np.zeros((rows, 2 * nv))
         residuals[:3], residuals[3:6] = position_root * position_error, angle_root * angle_error
         jacobian[:3, dof:dof + 3] = position_root * np.eye(3)
@@ -229,12 +230,26 @@ class PushProblem:
                 mujoco.mju_quatIntegrate(quaternion, np.eye(3)[axis], sign * h)
                 turned.append(self.task.angle_error(quaternion))
             jacobian[3:6, dof + 3 + axis] = angle_root * (turned[0] - turned[1]) / (2 * h)
+        row = 6
         if c.object_velocity:
             root = math.sqrt(c.object_velocity)
             scale = np.array([1.0, 1.0, 1.0, *[float(self.scene.object_half_size[0])] * 3])
-            residuals[6:] = root * scale * self.scene.object_qvel(final_state)
-            jacobian[6:, nv + dof:nv + dof + 6] = np.diag(root * scale)
+            residuals[row:row + 6] = root * scale * self.scene.object_qvel(final_state)
+            jacobian[row:row + 6, nv + dof:nv + dof + 6] = np.diag(root * scale)
+            row += 6
+        if c.joint_speed:
+            excess, slope = self._speed_excess(self.scene.arm_qvel(final_state)[None])
+            residuals[row:row + 7] = excess[0]
+            jacobian[row:row + 7, nv + self.scene.arm_dof_adr] = np.diag(slope[0])
         return residuals, jacobian
+
+    def _speed_excess(self, qdot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The joint speed residuals of (k, 7) velocities, as one step of the running term, and their
+        derivatives (diagonal, (k, 7))."""
+        c = self.cost
+        root = math.sqrt(c.joint_speed / self.n_steps)
+        excess = np.maximum(np.abs(qdot) / self.scene.velocity_limit - c.joint_speed_margin, 0.0)
+        return root * excess, root * (excess > 0) * np.sign(qdot) / self.scene.velocity_limit
 
     def _running_residuals(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residuals of every step, (T, k), and their derivatives with respect to the step's used
@@ -256,11 +271,8 @@ class PushProblem:
             root = math.sqrt(self.running_factor * w.w4)
             block(root * sensordata[:, [self.gamma_row]], np.full((T, 1, 1), root), used["gamma"])
         if c.joint_speed:
-            root = math.sqrt(c.joint_speed / T)
-            qdot = sensordata[:, self.qdot_rows]
-            excess = np.maximum(np.abs(qdot) / self.scene.velocity_limit - c.joint_speed_margin, 0.0)
-            slope = root * (excess > 0) * np.sign(qdot) / self.scene.velocity_limit
-            block(root * excess, slope[:, :, None] * np.eye(7), used["qdot"])
+            excess, slope = self._speed_excess(sensordata[:, self.qdot_rows])
+            block(excess, slope[:, :, None] * np.eye(7), used["qdot"])
         if c.joint_position:
             root = math.sqrt(c.joint_position / T)
             q = sensordata[:, self.q_rows]

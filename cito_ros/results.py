@@ -83,12 +83,13 @@ class Metrics:
     planned_orientation_error_rad: float = metric("planned: final orientation error")
     physical_inaccuracy_Ns: float = metric("the planned virtual force's integral, sum of gamma dt (Table I)")
     max_joint_speed_ratio: float = metric("executed: largest |qdot_j| / velocity limit_j over the horizon")
+    joint_range_excess_rad: float = metric("executed: farthest any joint goes beyond its position range (0 inside)")
     final_object_speed_m_s: float = metric("executed: the object's speed at the end of the horizon")
     solve_time_s: float = metric("wall clock of the whole solve")
     iterations: int = metric("solver iterations over all stages and starts")
     status: Status = metric("how the solve ended")
     success: bool = metric("executed within task.success_position_error_m and success_orientation_error_rad, "
-                           "and within limits.max_joint_speed_ratio")
+                           "within limits.max_joint_speed_ratio and within every joint's range")
     planned_success: bool = metric("planned error below task.planned_success_position_error_m (the paper's)")
 
     def as_dict(self) -> dict[str, Any]:

@@ -87,7 +87,9 @@ class Scene:
         self.object_dof_adr = int(object_joint.dofadr[0])
         # where the object's qpos and qvel sit in a mjSTATE_FULLPHYSICS state (time, qpos, qvel, ...)
         self._state_object_adr = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME) + self.object_qpos_adr
-        self._state_object_dof = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME) + m.nq + self.object_dof_adr
+        self._state_qpos = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME)
+        self._state_qvel = self._state_qpos + m.nq
+        self._state_object_dof = self._state_qvel + self.object_dof_adr
         self.robot_site_id = m.site(ROBOT_CANDIDATE).id
         self.object_site_id = m.site(OBJECT_CANDIDATE).id
         self.object_geom_id = m.geom(OBJECT_GEOM).id
@@ -280,6 +282,19 @@ class Scene:
     def object_qvel(self, state: np.ndarray) -> np.ndarray:
         """The object's velocity (linear world, angular local) in a state or (..., nstate) states (a view)."""
         return state[..., self._state_object_dof:self._state_object_dof + 6]
+
+    def joint_range_excess(self, q: np.ndarray) -> float:
+        """How far (rad) any of (..., 7) arm joint positions goes beyond its range; 0 inside."""
+        low, high = self.joint_range.T
+        return float(max(np.max(low - q, initial=0.0), np.max(q - high, initial=0.0)))
+
+    def arm_qpos(self, state: np.ndarray) -> np.ndarray:
+        """The arm's joint positions in a state or (..., nstate) states."""
+        return state[..., self._state_qpos + self.arm_qpos_adr]
+
+    def arm_qvel(self, state: np.ndarray) -> np.ndarray:
+        """The arm's joint velocities in a state or (..., nstate) states."""
+        return state[..., self._state_qvel + self.arm_dof_adr]
 
     def object_pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Object position (m) and orientation quaternion (w, x, y, z), world frame."""

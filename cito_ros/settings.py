@@ -222,7 +222,7 @@ class PhysicalStage:
     contact_weight: float
     joint_speed_weight: float
     max_iter: int
-    only_if_too_fast: bool
+    only_if_beyond_limits: bool
 
 
 @dataclass(frozen=True)
@@ -233,8 +233,8 @@ class PhysicalStages:
                                                 minimum=0.0)
     joint_speed_weight: tuple[float, ...] = setting("weight of the joint speeds beyond their margin", minimum=0.0)
     max_iter: tuple[int, ...] = setting("solver iterations of the stage", minimum=1)
-    only_if_too_fast: tuple[bool, ...] = setting("run only while the best plan so far is faster than the limits "
-                                                 "allow")
+    only_if_beyond_limits: tuple[bool, ...] = setting("run only while the best plan so far is beyond the arm's "
+                                                      "limits (joint speeds or ranges)")
 
     def check(self, path: str) -> None:
         lengths = {len(getattr(self, f.name)) for f in dataclasses.fields(self)}
@@ -244,7 +244,7 @@ class PhysicalStages:
 
     def __iter__(self):
         return (PhysicalStage(*values) for values in zip(self.contact_weight, self.joint_speed_weight, self.max_iter,
-                                                           self.only_if_too_fast))
+                                                           self.only_if_beyond_limits))
 
 
 @dataclass(frozen=True)
@@ -253,7 +253,11 @@ class StagesSettings:
                           choices=("ilqr", "least_squares", "ipopt"))
     starts: tuple[float, ...] = setting("one discovery per entry, drawing the plate onto the object from this "
                                         "fraction of the horizon on", minimum=0.0)
-    parallel: bool = setting("solve the starts side by side on threads")
+    starts_per_round: int = setting("starts solved per round; no further round once a round's best plan "
+                                    "succeeds", minimum=1)
+    horizon_scales: tuple[float, ...] = setting("the starts' rounds are solved at horizon_s times each of these in "
+                                                "turn", positive=True)
+    parallel: bool = setting("solve a round's starts side by side on threads")
     discovery: DiscoverySettings = setting("the contact model's stage")
     physical: PhysicalStages = setting("the stages without the virtual force")
     touch_force_N: float = setting("a virtual force above this marks the discovery's touch-down", positive=True)
@@ -262,6 +266,8 @@ class StagesSettings:
         if not self.starts or any(start >= 1.0 for start in self.starts):
             raise ValueError(f"{path}.starts must be one or more fractions of the horizon in [0, 1), "
                              f"got {list(self.starts)}")
+        if not self.horizon_scales:
+            raise ValueError(f"{path}.horizon_scales must list at least one scale of horizon_s")
 
 
 @dataclass(frozen=True)
@@ -345,6 +351,12 @@ class Settings:
             if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
                 raise ValueError(f"{where}control_period_s {horizon.control_period_s} must be a whole number of "
                                  f"timesteps {self.scene.timestep_s} (scene {self.scene.name})")
+
+    @property
+    def round_horizons_s(self) -> tuple[float, ...]:
+        """The physical pipeline's horizon per stages.horizon_scales entry, in whole control periods."""
+        return tuple(max(round(self.horizon_s * scale / self.control_period_s), 1) * self.control_period_s
+                     for scale in self.stages.horizon_scales)
 
     @property
     def horizon(self) -> tuple[float, float]:

@@ -7,7 +7,8 @@ gradient is no descent direction; IPOPT restarted from its last iterate (a fresh
 and barrier) leaves it.
 
 Physical pipeline: the contact model discovers contact, the plan that leaves is refined without the
-virtual force. For each of `stages.starts` (solved side by side when `stages.parallel`):
+virtual force. For each of `stages.starts`, in rounds of `stages.starts_per_round` (a round side by side
+when `stages.parallel`) until a round's best plan succeeds:
 
 1. discovery: the contact model's problem from zero torques, plus the arm's limits and a reach
    term, the plate-object gap squared from the start's fraction of the horizon on. The virtual force
@@ -16,16 +17,17 @@ virtual force. For each of `stages.starts` (solved side by side when `stages.par
 2. physical stages (`stages.physical`): the torques alone, the contact control held at 0 (the
    dynamics the plan is executed with), from the previous stage's torques, with a contact term
    that keeps the plate on the object from the discovery's touch-down to the end: a push, not a
-   strike, whose outcome depends smoothly on the torques. A stage marked only_if_too_fast runs
-   only while the best plan still exceeds the joint speed limits.
+   strike, whose outcome depends smoothly on the torques. A stage marked only_if_beyond_limits runs
+   only while the best plan still exceeds the arm's joint speed limits or ranges.
 
 Every stage's torques, executed without the virtual force, are a candidate; the plan returned is the
-best of all (within the joint speed limits first, then at the goal, then closest to it).
+best of all (within the arm's speed limits and ranges first, then at the goal, then closest to it).
 """
 from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -66,23 +68,35 @@ class Executed:
     position_error_m: float
     orientation_error_rad: float
     max_joint_speed_ratio: float
+    joint_range_excess_rad: float
 
     def rank(self, settings: Settings) -> tuple:
         task = settings.task
         at_goal = (self.position_error_m < task.success_position_error_m
                    and self.orientation_error_rad < task.success_orientation_error_rad)
-        return (self.max_joint_speed_ratio > settings.limits.max_joint_speed_ratio, not at_goal,
+        beyond_limits = (self.max_joint_speed_ratio > settings.limits.max_joint_speed_ratio
+                         or self.joint_range_excess_rad > 0.0)
+        return (beyond_limits, not at_goal,
                 self.position_error_m / task.success_position_error_m
                 + self.orientation_error_rad / task.success_orientation_error_rad)
 
+    @staticmethod
+    def succeeds(rank: tuple) -> bool:
+        """Whether a rank is a success: within the arm's limits and at the goal."""
+        beyond_limits, away, _ = rank
+        return not beyond_limits and not away
+
 
 def execute(executor: PushProblem, torques: np.ndarray) -> Executed:
-    """The executed errors and joint speed ratio of torques, by `executor` (no virtual force)."""
+    """The executed errors and arm limits of torques, by `executor` (no virtual force)."""
     evaluation = executor.evaluate(executor.with_torques(torques))
+    if not evaluation.finite:
+        return Executed(math.inf, math.inf, math.inf, math.inf)
     position_error, angle_error = executor.task.pose_error(executor.scene.object_qpos(evaluation.states[-1]))
-    speeds = np.abs(evaluation.sensordata[:, executor.qdot_rows]) / executor.scene.velocity_limit
-    return Executed(float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error)),
-                    float(speeds.max()) if evaluation.finite else float("inf"))
+    scene = executor.scene
+    speeds = np.abs(scene.arm_qvel(evaluation.states)) / scene.velocity_limit  # to the end
+    return Executed(float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error)), float(speeds.max()),
+                    scene.joint_range_excess(scene.arm_qpos(evaluation.states)))
 
 
 class _Clock:
@@ -180,20 +194,32 @@ def physical_twin(problem: PushProblem, cost: StageCost) -> PushProblem:
 def solve_physical(settings: Settings, request: PushRequest, *,
                    iteration_callback: Callable[[IterationLog], None] | None = None,
                    cancel: threading.Event | None = None) -> Outcome:
-    """Every start's discovery and physical stages; the best executed plan of all."""
+    """The starts' discoveries and physical stages, round by round until a round's best plan succeeds;
+    the best executed plan of all. Each start is a lottery ticket of a non-convex problem: most
+    pushes succeed in the first round and pay for one, the rest draw again."""
     clock = _Clock(settings, iteration_callback, cancel)
-    starts = settings.stages.starts
-    parallel = settings.stages.parallel and len(starts) > 1
+    stages = settings.stages
+    starts, width, scales = stages.starts, stages.starts_per_round, stages.horizon_scales
+    parallel = stages.parallel and min(width, len(starts)) > 1
     per_start = settings.with_overrides({"gradient.threads": 1}) if parallel else settings
-    jobs = [(per_start, request, fraction, f"start {i + 1}: " if len(starts) > 1 else "")
-            for i, fraction in enumerate(starts)]
-    if parallel:
-        with concurrent.futures.ThreadPoolExecutor(len(jobs), thread_name_prefix="cito_start") as pool:
-            results = list(pool.map(lambda job: _solve_start(clock, *job), jobs))
-    else:
-        results = [_solve_start(clock, *job) for job in jobs]
-    best = min(results, key=lambda result: result[0])
-    _, outcome = best
+    rounds = []
+    for horizon_s in settings.round_horizons_s:
+        horizon = per_start.with_overrides({"horizon_s": horizon_s})
+        prefix = f"horizon {horizon_s:g} s, " if len(scales) > 1 else ""
+        jobs = [(horizon, request, fraction, f"{prefix}start {i + 1}: " if len(starts) > 1 else prefix)
+                for i, fraction in enumerate(starts)]
+        rounds += [jobs[first:first + width] for first in range(0, len(jobs), width)]
+    results = []
+    for round_jobs in rounds:
+        if parallel and len(round_jobs) > 1:
+            with concurrent.futures.ThreadPoolExecutor(len(round_jobs), thread_name_prefix="cito_start") as pool:
+                results += pool.map(lambda job: _solve_start(clock, *job), round_jobs)
+        else:
+            results += [_solve_start(clock, *job) for job in round_jobs]
+        rank, outcome = min(results, key=lambda result: result[0])
+        if outcome.status.interrupted or Executed.succeeds(rank):
+            break
+    _, outcome = min(results, key=lambda result: result[0])
     log = tuple(entry for _, result in results for entry in result.log)
     records = tuple(record for _, result in results for record in result.stages)
     interrupted = next((result.status for _, result in results if result.status.interrupted), None)
@@ -221,7 +247,7 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
     for index, spec in enumerate(settings.stages.physical):
         if run.interrupted:
             break
-        if spec.only_if_too_fast and not best[0][0]:
+        if spec.only_if_beyond_limits and not best[0][0]:  # best[0][0]: beyond the arm's limits
             continue
         problem = physical_twin(discovery, stage_cost(settings, base.weights, False, spec.contact_weight, touch,
                                                       spec.joint_speed_weight))

@@ -39,8 +39,10 @@ def test_returned_plans_keep_the_arm_within_its_limits(solved, settings, scenes,
     assert np.all(np.abs(result.knot_torques_Nm) <= scene.torque_limit + 1e-9)
 
 
-def test_cccm_constraints_hold_in_its_plan(solved, settings):
-    result = solved["cccm"]
+def test_cccm_constraints_hold_in_the_papers_plan(settings):
+    # the paper's problem, solved to IPOPT's convergence; in the physical pipeline the CCCM plan is a
+    # capped discovery stage whose virtual force the returned plan does not have
+    result = plan_push("cccm", 7, target_position_m=SHORT_PUSH_M, settings=settings.with_overrides({"pipeline": "paper"}))
     tolerance = settings.solver.ipopt_options["constr_viol_tol"]
     knots = len(result.knot_torques_Nm)
     phi = result.planned.signed_distance_m.reshape(knots, -1).mean(axis=1)
