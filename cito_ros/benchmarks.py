@@ -7,16 +7,19 @@ from __future__ import annotations
 import csv
 import os
 import statistics
+import sys
 import time
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from tqdm import tqdm
 
 from cito_ros import oracle, sweep
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.planner import plan_push
-from cito_ros.scene import Scene
+from cito_ros.results import PHASE_METRICS, phase_table
+from cito_ros.scene import Scene, start_configuration
 from cito_ros.settings import Settings, load_settings
 from cito_ros.simulator import Simulator
 
@@ -110,6 +113,52 @@ def gradient_benchmark(repeats: int = 20, contact_model_name: str = "vscm") -> d
     }
 
 
+def solve_cost_benchmark(goals: int = 20, seed: int = 0, repeats: int = 20) -> dict:
+    """In this process, one after the other: each of the paper's nine cases and of the first `goals`
+    goals of `cito-bench targets` (seed `seed`) is solved by the physical pipeline, and one rollout of
+    its problem's first horizon is timed (median of `repeats`). The solve cost in rollout-equivalents
+    (solve time / rollout time, per case) does not depend on the machine's speed."""
+    from cito_ros.targets import draw_goals
+
+    settings = load_settings().with_overrides({"stages.parallel": False})  # one thread per solve, as on Ray
+    requests = [(f"paper {model} beta {beta}", PushRequest(model, beta=beta)) for model, beta in PAPER_CASES]
+    for goal in draw_goals(goals, seed, settings)[0]:
+        requests += [(f"target {goal.index} {model}",
+                      PushRequest(model, start_q=start_configuration(goal.beta),
+                                  target_position_m=np.array(goal.target_position_m),
+                                  target_yaw_rad=goal.target_yaw_rad)) for model in PAPER_MODELS]
+    cases = []
+    for name, request in tqdm(requests, desc="solve-cost", unit="solve", file=sys.stderr):
+        posed = build_problem(settings, request)
+        controls = posed.simulator.step_controls(posed.problem.knot_controls(posed.problem.initial_guess))[None]
+        rollout_ms = median_ms(lambda: posed.simulator.rollout_batch(posed.initial_state[None], controls), repeats)
+        result = plan_push(request.contact_model, request.beta, start_q=request.start_q,
+                           target_position_m=request.target_position_m, target_yaw_rad=request.target_yaw_rad,
+                           settings=settings)
+        m = result.metrics
+        cases.append({"case": name, "rollout_ms": rollout_ms, "solve_time_s": m.solve_time_s,
+                      "rollout_equivalents": 1e3 * m.solve_time_s / rollout_ms, "iterations": m.iterations,
+                      "success": m.success, **{phase: getattr(m, phase) for phase in PHASE_METRICS}})
+
+    def median(rows: list[dict], key: str) -> float:
+        return float(statistics.median(row[key] for row in rows))
+
+    paper, targets = cases[:len(PAPER_CASES)], cases[len(PAPER_CASES):]
+    return {
+        "cases": len(cases),
+        "rollout_ms_median": median(cases, "rollout_ms"),
+        "solve_time_s_median": {"paper": median(paper, "solve_time_s"),
+                                "targets": median(targets, "solve_time_s") if targets else None,
+                                "all": median(cases, "solve_time_s")},
+        "rollout_equivalents_median": median(cases, "rollout_equivalents"),
+        "iterations_median": median(cases, "iterations"),
+        "success": sum(row["success"] for row in cases),
+        "phase_share_median": {phase: float(statistics.median(row[phase] / row["solve_time_s"] for row in cases))
+                               for phase in PHASE_METRICS},
+        "per_case": cases,
+    }
+
+
 # The paper's Tables I-IV, by initial distance (beta 7, 6, 5) and contact model.
 PAPER = {
     "physical_inaccuracy_Ns": {7: (0.1121, 2.0400, 1.2137), 6: (0.0238, 1.4914, 1.2676), 5: (0.0373, 0.0381, 0.0001)},
@@ -166,7 +215,9 @@ def paper_tables(results: list[dict]) -> str:
         f"{r['contact_model']} beta={int(r['beta'])}: {'yes' if r['planned_success'] else 'no'}" for r in results),
         "", "Success (executed without the virtual force within 2 cm, 0.15 rad and the joint speed limits): " + ", ".join(
         f"{r['contact_model']} beta={int(r['beta'])}: {'yes' if r['success'] else 'no'} ({r['status']})" for r in results),
-        "", f"Median solve time over the {len(results)} cases: {statistics.median(r['solve_time_s'] for r in results):.2f} s", ""]
+        "", f"Median solve time over the {len(results)} cases: {statistics.median(r['solve_time_s'] for r in results):.2f} s", "",
+        "Where the solve time went:", "",
+        phase_table({model.upper(): [r for r in results if r["contact_model"] == model] for model in PAPER_MODELS})]
     lines += [f"- {r['key']}: failed: {r['error']}" for r in failed]
     return "\n".join(lines)
 

@@ -141,6 +141,11 @@ def _forward(problem, expansion, decisions: np.ndarray, k: np.ndarray, K: np.nda
              lower: np.ndarray, upper: np.ndarray):
     """The evaluation of the decisions a closed-loop rollout chooses knot by knot, from the knot's start
     state: c_l = c_l + alpha k_l + K_l (x_l - x_l). Open loop, they reproduce the same motion."""
+    with problem.simulator.clock.measure("rollout"):
+        return _closed_loop_rollout(problem, expansion, decisions, k, K, alpha, lower, upper)
+
+
+def _closed_loop_rollout(problem, expansion, decisions, k, K, alpha, lower, upper):
     model, S = problem.scene.model, problem.steps_per_knot
     N = decisions.shape[0]
     P = problem.decision_map()

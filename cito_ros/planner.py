@@ -105,6 +105,11 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(
             executor.evaluate(executor.with_torques(outcome.torques)).states[-1])[:3])),
         solve_time_s=outcome.solve_time_s,
+        setup_time_s=outcome.setup_s,
+        rollout_time_s=sum(record.rollout_s for record in outcome.stages),
+        linearization_time_s=sum(record.linearization_s for record in outcome.stages),
+        solver_time_s=sum(record.solver_s for record in outcome.stages),
+        evaluation_time_s=sum(record.evaluation_s for record in outcome.stages),
         iterations=sum(record.iterations for record in outcome.stages),
         status=status,
         success=bool(usable and position_error < settings.task.success_position_error_m

@@ -432,9 +432,10 @@ class PushProblem:
         """The per-step linearization of the rollout of z."""
         evaluation = self.evaluate(z)
         states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
-        return derivatives.linearize(self.scene.model, self._linearization_data, states_before,
-                                     self.simulator.step_controls(evaluation.knot_controls),
-                                     self.derivative_settings.epsilon)
+        with self.simulator.clock.measure("linearization"):
+            return derivatives.linearize(self.scene.model, self._linearization_data, states_before,
+                                         self.simulator.step_controls(evaluation.knot_controls),
+                                         self.derivative_settings.epsilon)
 
     def _adjoint(self, evaluation: Evaluation):
         """d(dynamic cost terms)/dz and d(knot mean phi)/dz through the dynamics, by the adjoint pass."""
@@ -523,9 +524,10 @@ class PushProblem:
             return dynamic, phi if self.n_constraints_per_knot else None
 
         states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
-        return derivatives.restart_differences(
-            self.simulator, states_before, evaluation.states, evaluation.sensordata, evaluation.z, columns, steps,
-            lambda z: self.simulator.step_controls(self.knot_controls(z)), outputs)
+        with self.simulator.clock.measure("linearization"):
+            return derivatives.restart_differences(
+                self.simulator, states_before, evaluation.states, evaluation.sensordata, evaluation.z, columns,
+                steps, lambda z: self.simulator.step_controls(self.knot_controls(z)), outputs)
 
     # ------------------------------------------------------------------ knot-wise model (iLQR)
 

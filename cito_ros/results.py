@@ -60,9 +60,16 @@ class StageRecord:
     name: str
     status: Status
     iterations: int
-    seconds: float
+    seconds: float               # the stage's wall clock: the four phases below
     cost: float                  # the stage's own cost at its end
     position_error_m: float      # the stage's plan executed without the virtual force
+    rollout_s: float             # simulating the solver's decisions and trials
+    linearization_s: float       # the per-step linearizations (and knot-restart differences)
+    solver_s: float              # the rest of the solve: backward passes, QPs, IPOPT, residuals
+    evaluation_s: float          # executing the stage's plan without the virtual force, to rank it
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**{f.name: getattr(self, f.name) for f in dataclasses.fields(self)}, "status": self.status.value}
 
 
 def metric(description: str) -> Any:
@@ -86,6 +93,12 @@ class Metrics:
     joint_range_excess_rad: float = metric("executed: farthest any joint goes beyond its position range (0 inside)")
     final_object_speed_m_s: float = metric("executed: the object's speed at the end of the horizon")
     solve_time_s: float = metric("wall clock of the whole solve")
+    setup_time_s: float = metric("posing the problems (scene, simulator, touch-down profile), summed over starts")
+    rollout_time_s: float = metric("simulating the solvers' decisions and trials, summed over stages")
+    linearization_time_s: float = metric("per-step linearizations and knot-restart differences, summed over stages")
+    solver_time_s: float = metric("the solvers' own work (backward passes, QPs, IPOPT, residuals), summed")
+    evaluation_time_s: float = metric("executing each stage's plan without the virtual force to rank it, summed; "
+                                      "with starts side by side the five phases sum to more than the solve time")
     iterations: int = metric("solver iterations over all stages and starts")
     status: Status = metric("how the solve ended")
     success: bool = metric("executed within task.success_position_error_m and success_orientation_error_rad, "
@@ -101,6 +114,24 @@ class Metrics:
 
 
 METRIC_NAMES = tuple(f.name for f in dataclasses.fields(Metrics))
+PHASE_METRICS = ("setup_time_s", "rollout_time_s", "linearization_time_s", "solver_time_s", "evaluation_time_s")
+
+
+def phase_table(groups: dict[str, list[dict[str, Any]]]) -> str:
+    """Markdown: per group of plan summaries, the median time of each phase and of the solve, and the
+    median share of the solve each phase took (the phases of side-by-side starts add up to more)."""
+    header = " | ".join(name.removesuffix("_time_s") for name in PHASE_METRICS)
+    lines = [f"| plans | solve (s) | {header} (median s) | {header} (median share of the solve) |",
+             "|---|---|" + "---|" * 2 * len(PHASE_METRICS)]
+    for label, rows in groups.items():
+        rows = [r for r in rows if all(name in r for name in PHASE_METRICS)]
+        if not rows:
+            continue
+        times = [f"{float(np.median([r[name] for r in rows])):.2f}" for name in PHASE_METRICS]
+        shares = [f"{float(np.median([r[name] / r['solve_time_s'] for r in rows])):.0%}" for name in PHASE_METRICS]
+        lines.append(f"| {label} ({len(rows)}) | {float(np.median([r['solve_time_s'] for r in rows])):.2f} | "
+                     + " | ".join(times) + " | " + " | ".join(shares) + " |")
+    return "\n".join(lines) + "\n"
 
 
 @dataclass(frozen=True)
@@ -149,8 +180,7 @@ class PlanResult:
             "tracked_object_position_m": self.tracked.object_position_m[-1].tolist(),
             "warnings": self.trajectory.warnings,
             "derivatives": self.derivative_info,
-            "stages": [{"name": r.name, "status": r.status.value, "iterations": r.iterations, "seconds": r.seconds,
-                        "cost": r.cost, "position_error_m": r.position_error_m} for r in self.stages],
+            "stages": [record.as_dict() for record in self.stages],
         }
 
     def finite(self) -> bool:

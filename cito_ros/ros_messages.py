@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
-from cito_msgs.msg import ContactForce, PlanMetrics, PlanRequest, PlanResult as PlanResultMsg, SolverProgress
+from cito_msgs.msg import (ContactForce, PlanMetrics, PlanRequest, PlanResult as PlanResultMsg, SolverProgress,
+                           StageTiming)
 from cito_msgs.srv import PlanPush
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3, Wrench
 from nav_msgs.msg import Path
@@ -20,7 +21,7 @@ from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from cito_ros.contact_models import CONTACT_MODELS
-from cito_ros.results import IterationLog, Metrics, PlanResult, Status
+from cito_ros.results import IterationLog, Metrics, PlanResult, StageRecord, Status
 from cito_ros.scene import ARM_JOINTS, TABLE_TOP_Z_M
 from cito_ros.settings import SceneConfig, Settings
 
@@ -127,13 +128,19 @@ def response_status(result: PlanResult, settings: Settings) -> tuple[int, str]:
         return Response.STATUS_SUCCEEDED, ends
     return Response.STATUS_TASK_NOT_ACHIEVED, (
         f"task not achieved: {ends}; success needs {100 * settings.task.success_position_error_m:.1f} cm, "
-        f"{settings.task.success_orientation_error_rad:.2f} rad and joint speeds within "
-        f"{settings.limits.max_joint_speed_ratio:.2f} of their limits (reached {m.max_joint_speed_ratio:.2f})")
+        f"{settings.task.success_orientation_error_rad:.2f} rad, joint speeds within "
+        f"{settings.limits.max_joint_speed_ratio:.2f} of their limits (reached {m.max_joint_speed_ratio:.2f}) and "
+        f"joints within their ranges (beyond by {m.joint_range_excess_rad:.3f} rad)")
 
 
 def metrics_msg(metrics: Metrics) -> PlanMetrics:
     """The PlanMetrics message: every Metrics field under its lower-cased name."""
     return PlanMetrics(**{name.lower(): value for name, value in metrics.as_dict().items()})
+
+
+def stage_msgs(stages: tuple[StageRecord, ...]) -> list[StageTiming]:
+    """One StageTiming message per stage: every StageRecord field under its name."""
+    return [StageTiming(**record.as_dict()) for record in stages]
 
 
 def time_msg(ns: int) -> Time:
@@ -232,7 +239,7 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
         target_pose=pose_msg(result.target_position_m, np.array([w, x, y, z])),
         final_object_pose=poses[-1].pose,
         planned_object_pose=pose_msg(result.planned.object_position_m[-1], result.planned.object_quaternion[-1]),
-        metrics=metrics_msg(result.metrics), bag_path=bag_path)
+        metrics=metrics_msg(result.metrics), stages=stage_msgs(result.stages), bag_path=bag_path)
     return PlanMessages(joint_trajectory, forces, poses, Path(header=header, poses=poses), result_msg, stamps[:steps])
 
 
@@ -240,7 +247,7 @@ def fill_response(response, messages: PlanMessages):
     """Fill a PlanPush service response or action result (the same fields) from a finished plan."""
     result = messages.result
     response.success, response.status, response.message = result.metrics.success, result.status, result.message
-    response.metrics, response.bag_path = result.metrics, result.bag_path
+    response.metrics, response.stages, response.bag_path = result.metrics, result.stages, result.bag_path
     response.trajectory = messages.trajectory
     response.contact_forces = messages.contact_forces
     return response

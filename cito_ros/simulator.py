@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
+from cito_ros.timing import PhaseClock
 from cito_ros.typed_config import require_finite
 from cito_ros.scene import ARM_JOINTS, Scene
 
@@ -83,6 +84,7 @@ class Simulator:
         self._serial = mj_rollout.Rollout(nthread=0)
         self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
         self._data = [mujoco.MjData(self.model) for _ in range(nthread)]
+        self.clock = PhaseClock()  # the time of the rollouts and linearizations on this simulator
 
     # ------------------------------------------------------------------ inputs
 
@@ -150,6 +152,11 @@ class Simulator:
         (B, nstep, nstate), the sensordata (B, nstep, nsensordata) and the MuJoCo
         warnings summed over the batch.
         """
+        with self.clock.measure("rollout"):
+            return self._rollout_batch(initial_states, step_controls, nstep)
+
+    def _rollout_batch(self, initial_states: np.ndarray, step_controls: np.ndarray,
+                       nstep: int | None) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
         for data in self._data:
             _clear_warnings(data)
         batch = initial_states.shape[0]

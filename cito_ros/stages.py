@@ -59,6 +59,7 @@ class Outcome:
     log: tuple[IterationLog, ...]
     stages: tuple[StageRecord, ...]
     solve_time_s: float
+    setup_s: float                # posing the problems, summed over starts
 
 
 @dataclass(frozen=True)
@@ -134,17 +135,21 @@ class _Run:
                                        max_iter=min(max_iter, self.clock.settings.solver.max_iter))
         solver: Solver = IpoptSolver(settings) if problem.n_constraints else SOLVERS[kind](settings)
         offset = self.log[-1].iteration + 1 if self.log else 0
-        began = time.perf_counter()
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
                                    self.clock.cancel, self.clock.report, f"{self.prefix}{name}",
                                    problem.cost.virtual_force)
+        phases, began = problem.simulator.clock.read(), time.perf_counter()
         outcome = solver.solve(problem, start, lower, upper, monitor)
+        phases, solved = problem.simulator.clock.read() - phases, time.perf_counter()
         self.log += outcome.log
+        cost = float(problem.evaluate(outcome.z).cost)
         executed = execute(executor, problem.split(outcome.z)[0])
+        ended = time.perf_counter()
         iterations = outcome.log[-1].iteration - offset if outcome.log else 0  # the log starts at iteration 0
-        self.records.append(StageRecord(f"{self.prefix}{name}", outcome.status, iterations,
-                                        time.perf_counter() - began, float(problem.evaluate(outcome.z).cost),
-                                        executed.position_error_m))
+        self.records.append(StageRecord(
+            f"{self.prefix}{name}", outcome.status, iterations, ended - began, cost, executed.position_error_m,
+            phases.rollout_s, phases.linearization_s, solved - began - phases.rollout_s - phases.linearization_s,
+            ended - solved))
         if outcome.status.interrupted:
             self.interrupted = outcome.status
         return outcome, executed
@@ -158,7 +163,9 @@ def solve_paper(posed: PlanningProblem, settings: Settings, *,
     """The paper's problem from zero torques by IPOPT, with restarts while it ends short of the task."""
     clock = _Clock(settings, iteration_callback, cancel)
     problem = posed.problem
+    began = time.perf_counter()
     executor = physical_twin(problem, StageCost.paper(problem.weights))
+    setup_s = time.perf_counter() - began
     run = _Run(clock, "")
     stage, executed = run.stage(problem, "ipopt", problem.initial_guess, problem.lower, problem.upper, "paper",
                                 settings.solver.max_iter, executor)
@@ -172,7 +179,7 @@ def solve_paper(posed: PlanningProblem, settings: Settings, *,
             best, best_error = stage, planned_error(problem, stage.z)
     status = run.interrupted or best.status
     return Outcome(problem, best.z, problem.split(best.z)[0], executor, status, tuple(run.log), tuple(run.records),
-                   clock.elapsed())
+                   clock.elapsed(), setup_s)
 
 
 def planned_error(problem: PushProblem, z: np.ndarray) -> float:
@@ -224,10 +231,11 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     records = tuple(record for _, result in results for record in result.stages)
     interrupted = next((result.status for _, result in results if result.status.interrupted), None)
     return dataclasses.replace(outcome, log=log, stages=records, status=interrupted or outcome.status,
-                               solve_time_s=clock.elapsed())
+                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in results))
 
 
 def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fraction: float, prefix: str):
+    began = time.perf_counter()
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
     T = base.n_steps
@@ -237,12 +245,15 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
                                        limits.joint_speed_weight),
                             base.derivative_settings, base.position_scale_min_m)
     executor = physical_twin(discovery, discovery.cost)
+    setup_s = time.perf_counter() - began
     run = _Run(clock, prefix)
     stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
                                 discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
     planned_z = stage.z
     best = (executed.rank(settings), discovery.split(stage.z)[0], stage.status)
+    began = time.perf_counter()
     touch = touch_profile(discovery, planned_z, settings.stages.touch_force_N)
+    setup_s += time.perf_counter() - began
     torques = best[1]
     for index, spec in enumerate(settings.stages.physical):
         if run.interrupted:
@@ -258,7 +269,7 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
             best = (executed.rank(settings), torques, stage.status)
     rank, chosen, status = best
     return rank, Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
-                         tuple(run.records), clock.elapsed())
+                         tuple(run.records), clock.elapsed(), setup_s)
 
 
 def stage_cost(settings: Settings, weights, virtual_force: bool, contact_weight: float,

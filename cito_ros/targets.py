@@ -20,6 +20,7 @@ import numpy as np
 from cito_ros.builder import make_task
 from cito_ros.contact_models import contact_model
 from cito_ros.planner import plan_push
+from cito_ros.results import phase_table
 from cito_ros.scene import Scene, start_configuration
 from cito_ros.settings import Settings, load_settings
 
@@ -144,7 +145,8 @@ def report(records: list[dict[str, Any]], refused: list[str]) -> dict[str, Any]:
             "iterations": {"median": statistics.median(r["iterations"] for r in rows),
                            "p90": _percentile([r["iterations"] for r in rows], 90)},
         }
-    return {"models": per_model, "stability": stability(records), "refused_draws": len(refused),
+    phases = phase_table({model.upper(): [r for r in plain if r["contact_model"] == model] for model in per_model})
+    return {"models": per_model, "stability": stability(records), "phases": phases, "refused_draws": len(refused),
             "refused_reasons": sorted(set(refused))[:5], "failures": [(r["key"], r["error"]) for r in failed]}
 
 
@@ -172,7 +174,7 @@ def markdown(summary: dict[str, Any]) -> str:
             for name, s in by.items():
                 lines.append(f"| {model.upper()} | {name} | {s['same_verdict']}/{s['pairs']} | "
                              f"{s['within_1cm']}/{s['pairs']} | {100 * s['max_change_m']:.2f} |")
-    lines.append("")
+    lines += ["", "Where the solve time went (cito_ros.results.PHASE_METRICS):", "", summary["phases"]]
     for key, error in summary["failures"]:
         lines.append(f"- {key}: failed: {error}")
     lines.append(f"Draws refused by the planner's checks and drawn again: {summary['refused_draws']}"

@@ -9,9 +9,13 @@ from cito_ros.builder import PushRequest, build_problem
 from cito_ros.cases import load_cases, run_case
 from cito_ros.planner import evaluate_plan
 from cito_ros.results import Status
+from cito_ros.settings import load_settings
 from cito_ros.stages import Outcome, physical_twin
 
 CASES = load_cases()
+# one round of starts: these tests are about statuses and numbers, not success, and the later rounds
+# of a missed push (cito_ros.stages.solve_physical) would only repeat them over longer horizons
+ONE_ROUND = load_settings().with_overrides({"stages.horizon_scales": [1.0]})
 STATUSES = {s.value for s in Status} | {"invalid_request"}
 EXPECTED = {"far_0.40m", "far_0.50m", "lateral_+0.15m", "lateral_-0.15m", "yaw_30deg", "yaw_45deg", "heavy_2kg",
             "light_50g", "friction_0.2", "friction_1.2", "timestep_2ms", "knots_40", "near_joint_limits",
@@ -42,7 +46,7 @@ def test_far_starts_are_0_4_and_0_5_m_away(scenes):
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_every_case_ends_with_a_status_and_finite_numbers(name):
-    record, result = run_case(CASES[name], "scm")
+    record, result = run_case(CASES[name], "scm", ONE_ROUND)
     check_record(record, result)
 
 
@@ -59,8 +63,8 @@ def test_a_target_already_reached_stays_reached():
 
 @pytest.mark.parametrize("name", ["lateral_+0.15m", "timestep_2ms", "knots_40"])
 def test_a_case_run_twice_gives_identical_results(name):
-    first, a = run_case(CASES[name], "scm")
-    second, b = run_case(CASES[name], "scm")
+    first, a = run_case(CASES[name], "scm", ONE_ROUND)
+    second, b = run_case(CASES[name], "scm", ONE_ROUND)
     assert np.array_equal(a.knot_torques_Nm, b.knot_torques_Nm)
     assert first["position_error_m"] == second["position_error_m"] and first["status"] == second["status"]
 
@@ -78,7 +82,7 @@ def test_mujoco_warnings_are_reported_as_a_status(tmp_path, settings):
     z = problem.initial_guess.copy().reshape(20, 9)
     z[:, 7] = 100.0
     outcome = Outcome(problem, z.ravel(), np.zeros((20, 7)), physical_twin(problem, problem.cost), Status.CONVERGED,
-                      (), (), 0.0)
+                      (), (), 0.0, 0.0)
     result = evaluate_plan(outcome, posed, settings)
     assert result.status is Status.NUMERICAL_ERROR and not result.metrics.success
 
@@ -87,5 +91,5 @@ def test_mujoco_warnings_are_reported_as_a_status(tmp_path, settings):
 @pytest.mark.parametrize("model", ["cccm", "vscm"])
 def test_every_case_with_the_other_models(model):
     for name in sorted(EXPECTED):
-        record, result = run_case(CASES[name], model)
+        record, result = run_case(CASES[name], model, ONE_ROUND)
         check_record(record, result)

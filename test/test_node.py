@@ -43,7 +43,15 @@ TOPICS = {
     "/cito/plan_result": PlanResult, "/joint_states": JointState, "/cito/scene_markers": MarkerArray,
 }
 LATCHED = {"/cito/joint_trajectory", "/cito/object_path", "/cito/plan_result"}
-STEPS = round(load_settings().horizon[0] / load_settings().scene.timestep_s)  # simulation steps of a plan
+HORIZON_STEPS = {round(h / load_settings().scene.timestep_s) for h in load_settings().round_horizons_s}
+
+
+def steps(response) -> int:
+    """The simulation steps of a plan: one of the horizons its rounds are solved at."""
+    end = response.trajectory.points[-1].time_from_start
+    count = round((end.sec + 1e-9 * end.nanosec) / load_settings().scene.timestep_s)
+    assert count in HORIZON_STEPS
+    return count
 
 
 def start_node(domain: int, bag_directory: Path, *extra: str) -> subprocess.Popen:
@@ -167,8 +175,9 @@ def test_a_plan_for_each_contact_model(plans, model):
     m = response.metrics
     assert m.success and m.position_error_m < 0.02 and m.iterations > 0 and m.solve_time_s > 0
     assert m.max_joint_speed_ratio <= 1.05
-    assert len(response.trajectory.points) == STEPS + 1 and len(response.contact_forces) == STEPS
+    assert len(response.trajectory.points) == steps(response) + 1 and len(response.contact_forces) == steps(response)
     assert response.trajectory.joint_names == JOINTS
+    assert response.stages and sum(stage.iterations for stage in response.stages) == m.iterations
     assert Path(response.bag_path, "metadata.yaml").is_file()
 
 
@@ -183,18 +192,20 @@ def test_the_service_plan_is_the_library_plan(plans):
 @pytest.mark.parametrize("model", ["cccm", "vscm"])
 def test_every_topic_is_received(plans, model):
     response, received = plans[model]
+    n_steps = steps(response)
     assert len(received["/cito/plan_request"]) == 1 and received["/cito/plan_request"][0].contact_model == model
     assert len(received["/cito/progress"]) >= 1
-    assert len(received["/cito/contact_forces"]) == STEPS and len(received["/cito/object_pose"]) == STEPS + 1
-    assert len(received["/joint_states"]) == len(received["/cito/scene_markers"]) == STEPS + 1
+    assert len(received["/cito/contact_forces"]) == n_steps and len(received["/cito/object_pose"]) == n_steps + 1
+    assert len(received["/joint_states"]) == len(received["/cito/scene_markers"]) == n_steps + 1
     assert received["/cito/joint_trajectory"][-1].points[-1].positions.tolist() == \
         response.trajectory.points[-1].positions.tolist()
-    assert len(received["/cito/object_path"][-1].poses) == STEPS + 1
+    assert len(received["/cito/object_path"][-1].poses) == n_steps + 1
     result = received["/cito/plan_result"][-1]
     assert result.metrics == response.metrics and result.bag_path == response.bag_path
+    assert result.stages == response.stages
     assert result.header.frame_id == "world"
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in received["/cito/contact_forces"]]
-    assert stamps == sorted(stamps) and stamps[-1] - stamps[0] == pytest.approx((STEPS - 1) * 5e6, abs=2e6)
+    assert stamps == sorted(stamps) and stamps[-1] - stamps[0] == pytest.approx((n_steps - 1) * 5e6, abs=2e6)
 
 
 def test_late_subscriber_gets_the_last_plan(plans, domain):
@@ -250,8 +261,9 @@ def test_the_bag_matches_the_response(plans, reader, model):
     log_times = np.array([t for t, _ in forces])
     np.testing.assert_array_equal(log_times, [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in forces])
     np.testing.assert_allclose(np.diff(log_times), 5e6, atol=1)
-    assert len(bag["/cito/object_pose"]) == STEPS + 1
+    assert len(bag["/cito/object_pose"]) == steps(response) + 1
     (_, result), = bag["/cito/plan_result"]
+    assert [stage.name for stage in result.stages] == [stage.name for stage in response.stages]
     assert result.metrics.position_error_m == response.metrics.position_error_m
     assert result.metrics.physical_inaccuracy_ns == response.metrics.physical_inaccuracy_ns
     assert result.status == response.status and result.bag_path == response.bag_path
@@ -266,11 +278,12 @@ def test_the_bag_draws_the_arm_and_the_cube_at_every_step(plans, reader):
     response, _ = plans["vscm"]
     bag = reader(Path(response.bag_path))
     joints, markers, poses = bag["/joint_states"], bag["/cito/scene_markers"], bag["/cito/object_pose"]
-    assert len(joints) == len(markers) == STEPS + 1
+    n_steps = steps(response)
+    assert len(joints) == len(markers) == n_steps + 1
     assert [t for t, _ in joints] == [t for t, _ in markers] == [t for t, _ in poses]
     settings = load_settings()
     scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
-    for t in (0, STEPS // 3, 2 * STEPS // 3, STEPS):
+    for t in (0, n_steps // 3, 2 * n_steps // 3, n_steps):
         q = np.asarray(joints[t][1].position)
         np.testing.assert_array_equal(q, response.trajectory.points[t].positions)
         data = scene.data_at(q)

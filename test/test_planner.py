@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cito_ros.planner import plan_push
-from cito_ros.results import IterationLog, Status
+from cito_ros.results import PHASE_METRICS, IterationLog, Status
 
 
 SHORT_PUSH_M = [1.09, 0.0]  # the cube pushed 10 cm along +x from the paper's closest start (beta = 7)
@@ -179,3 +179,22 @@ class TestReach:
         reach = scenes["vscm"].push_reach_m()
         with pytest.raises(ValueError, match=rf"beyond the {reach:.3f} m the arm can push the object's centre to"):
             plan_push("vscm", 7, settings=settings, target_position_m=[reach + 0.01, 0.0])
+
+
+@pytest.mark.parametrize("pipeline", ["physical", "paper"])
+def test_phase_times_add_up_to_the_solve_time(settings, pipeline):
+    """Every stage's four phases are its wall clock; with the starts one after the other, the setup and
+    the stages' phases are the solve time (within 10 %)."""
+    result = plan_push("vscm", 7, target_position_m=SHORT_PUSH_M, settings=settings.with_overrides(
+        {"pipeline": pipeline, "stages.parallel": False, "solver.max_iter": 8}))
+    m = result.metrics
+    phases = [getattr(m, name) for name in PHASE_METRICS]
+    assert all(value >= 0 for value in phases) and m.rollout_time_s > 0 and m.linearization_time_s > 0
+    assert sum(phases) == pytest.approx(m.solve_time_s, rel=0.10)
+    for stage in result.stages:
+        assert stage.rollout_s + stage.linearization_s + stage.solver_s + stage.evaluation_s == \
+            pytest.approx(stage.seconds, abs=1e-9)
+    assert sum(stage.iterations for stage in result.stages) == m.iterations
+    summary = result.summary()
+    assert [s["solver_s"] for s in summary["stages"]] == [s.solver_s for s in result.stages]
+    assert all(summary[name] == getattr(m, name) for name in PHASE_METRICS)

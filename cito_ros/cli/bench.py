@@ -2,6 +2,7 @@
 
     cito-bench rollout [--json]                   native vs Python-oracle rollout speed
     cito-bench gradient [--json]                  full-gradient time in rollout-equivalents
+    cito-bench solve-cost [--goals N] [--json]             solve time in rollout-equivalents (one process)
     cito-bench paper [--pipeline P] [--json] [--out DIR]   the paper's nine cases, Tables I-IV
     cito-bench targets [--n 50] [--seed S] [--models M ...] [--perturb K] [--json] [--out DIR]   random pushes
     cito-bench speed-vs-error [--out DIR]         solver effort against error, with a plot
@@ -61,6 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     gradient = commands.add_parser("gradient", help="full-gradient time against one rollout")
     gradient.add_argument("--repeats", type=positive_int, default=20, help="timed gradients (median)")
     gradient.add_argument("--json", action="store_true", help="print one JSON object")
+    cost = commands.add_parser("solve-cost", help="solve time in rollout-equivalents, in one process")
+    cost.add_argument("--goals", type=int, default=20, metavar="N",
+                      help="the first N goals of `targets` (seed 0) with each model, besides the nine paper cases")
+    cost.add_argument("--repeats", type=positive_int, default=20, help="timed rollouts per case (median)")
+    cost.add_argument("--json", action="store_true", help="print one JSON object")
     paper = commands.add_parser("paper", help="the paper's nine cases and Tables I-IV")
     paper.add_argument("--pipeline", choices=("paper", "physical"), default="paper",
                        help="paper: exactly the paper's problem (Tables I-IV); physical: the planner's own")
@@ -113,6 +119,21 @@ def main(argv: list[str] | None = None) -> int:
                   f"{result['gradient_ms']:.1f} ms (linearization {result['linearization_ms']:.1f} ms, "
                   f"{result['threads']} threads); rollout {result['rollout_ms']:.2f} ms; "
                   f"ratio {result['ratio']:.1f} rollout-equivalents")
+    elif args.command == "solve-cost":
+        if args.goals < 0:
+            parser.error(f"--goals must be zero or more, got {args.goals}")
+        result = benchmarks.solve_cost_benchmark(goals=args.goals, repeats=args.repeats)
+        if args.json:
+            print(json.dumps(result))
+        else:
+            solve = result["solve_time_s_median"]
+            print(f"{result['cases']} solves in one process: median rollout {result['rollout_ms_median']:.2f} ms; "
+                  f"median solve {solve['all']:.2f} s (paper cases {solve['paper']:.2f} s"
+                  + (f", targets {solve['targets']:.2f} s" if solve["targets"] is not None else "")
+                  + f"); median solve cost {result['rollout_equivalents_median']:.0f} rollout-equivalents, "
+                  f"{result['iterations_median']:.0f} iterations; {result['success']} successes")
+            print("median share of the solve: " + ", ".join(
+                f"{name.removesuffix('_time_s')} {share:.0%}" for name, share in result["phase_share_median"].items()))
     elif args.command == "paper":
         results = benchmarks.paper_benchmark(args.pipeline, workers=args.workers, address=args.address, out=args.out)
         paths = benchmarks.write_paper_outputs(results, args.out)
