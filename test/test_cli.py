@@ -122,7 +122,7 @@ def test_bench_figures(tmp_path):
 
 @pytest.mark.slow
 def test_bench_collisions(tmp_path):
-    result = run("cito-bench", "collisions", "--json", "--out", str(tmp_path), timeout=1800)
+    result = run("cito-bench", "collisions", "--quick", "--json", "--out", str(tmp_path), timeout=1800)
     assert result.returncode == 0, result.stderr
     comparison = json.loads(result.stdout)["scenes"]
     assert comparison["minimal"]["explicit_pairs"] == 11 and comparison["all collisions"]["explicit_pairs"] == 0

@@ -9,9 +9,10 @@ import time
 from pathlib import Path
 
 from cito_ros import sweep, targets
+from cito_ros.results import PHASE_METRICS
 from cito_ros.settings import load_settings
 
-TIMINGS = ("solve_time_s",)
+TIMINGS = ("solve_time_s", *PHASE_METRICS)
 
 
 def small_sweep(settings, goals: int = 4, models=("scm", "vscm")):

@@ -99,6 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     collisions = commands.add_parser("collisions", help="minimal collision pairs against all collisions")
     collisions.add_argument("--out", type=Path, default=Path("out/collisions"))
     collisions.add_argument("--json", action="store_true", help="print the comparison")
+    collisions.add_argument("--quick", action="store_true", help="beta 7 only, 10 timed repeats (a smoke run)")
     add_sweep_options(collisions)
     figures = commands.add_parser("figures", help="snapshots and plots of planned motions")
     figures.add_argument("--out", type=Path, default=Path("docs/figures"))
@@ -188,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
         studies.write_csv(args.out / "hard_cases.csv", records)
         print(json.dumps(records) if args.json else report)
     elif args.command == "collisions":
-        result = studies.collision_cost(workers=args.workers, address=args.address, out=args.out)
+        result = studies.collision_cost(10 if args.quick else 50, betas=(7,) if args.quick else (5, 6, 7),
+                                        workers=args.workers, address=args.address, out=args.out)
         args.out.mkdir(parents=True, exist_ok=True)
         report = studies.collision_report(result)
         (args.out / "collisions.md").write_text(report)
