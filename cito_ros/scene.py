@@ -86,10 +86,10 @@ class Scene:
         self.object_qpos_adr = int(object_joint.qposadr[0])
         self.object_dof_adr = int(object_joint.dofadr[0])
         # where the object's qpos and qvel sit in a mjSTATE_FULLPHYSICS state (time, qpos, qvel, ...)
-        self._state_object_adr = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME) + self.object_qpos_adr
-        self._state_qpos = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME)
-        self._state_qvel = self._state_qpos + m.nq
-        self._state_object_dof = self._state_qvel + self.object_dof_adr
+        self.state_qpos_adr = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME)  # qpos, then qvel, in a state
+        self._state_object_adr = self.state_qpos_adr + self.object_qpos_adr
+        self.state_qvel_adr = self.state_qpos_adr + m.nq
+        self._state_object_dof = self.state_qvel_adr + self.object_dof_adr
         self.robot_site_id = m.site(ROBOT_CANDIDATE).id
         self.object_site_id = m.site(OBJECT_CANDIDATE).id
         self.object_geom_id = m.geom(OBJECT_GEOM).id
@@ -290,11 +290,11 @@ class Scene:
 
     def arm_qpos(self, state: np.ndarray) -> np.ndarray:
         """The arm's joint positions in a state or (..., nstate) states."""
-        return state[..., self._state_qpos + self.arm_qpos_adr]
+        return state[..., self.state_qpos_adr + self.arm_qpos_adr]
 
     def arm_qvel(self, state: np.ndarray) -> np.ndarray:
         """The arm's joint velocities in a state or (..., nstate) states."""
-        return state[..., self._state_qvel + self.arm_dof_adr]
+        return state[..., self.state_qvel_adr + self.arm_dof_adr]
 
     def object_pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Object position (m) and orientation quaternion (w, x, y, z), world frame."""

@@ -79,8 +79,8 @@ class Simulator:
         self.timestep_s = timestep
         self.nthread = nthread
         self.nstate = mujoco.mj_stateSize(self.model, FULL_PHYSICS)
-        self._qpos_offset = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_TIME)
-        self._qvel_offset = self._qpos_offset + self.model.nq
+        self._qpos_offset = scene.state_qpos_adr
+        self._qvel_offset = scene.state_qvel_adr
         self._serial = mj_rollout.Rollout(nthread=0)
         self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
         self._data = [mujoco.MjData(self.model) for _ in range(nthread)]

@@ -93,8 +93,8 @@ def execute(executor: PushProblem, torques: np.ndarray) -> Executed:
     evaluation = executor.evaluate(executor.with_torques(torques))
     if not evaluation.finite:
         return Executed(math.inf, math.inf, math.inf, math.inf)
-    position_error, angle_error = executor.task.pose_error(executor.scene.object_qpos(evaluation.states[-1]))
     scene = executor.scene
+    position_error, angle_error = executor.task.pose_error(scene.object_qpos(evaluation.states[-1]))
     speeds = np.abs(scene.arm_qvel(evaluation.states)) / scene.velocity_limit  # to the end
     return Executed(float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error)), float(speeds.max()),
                     scene.joint_range_excess(scene.arm_qpos(evaluation.states)))
