@@ -26,9 +26,6 @@ from cito_ros.results import Status
 from cito_ros.settings import SolverSettings
 from cito_ros.solver import IterationMonitor, StageOutcome
 
-FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
-
-
 class IlqrSolver:
     """Solves one box-bounded stage of a PushProblem by iLQR (settings `solver.ilqr`)."""
 
@@ -141,28 +138,13 @@ def _forward(problem, expansion, decisions: np.ndarray, k: np.ndarray, K: np.nda
              lower: np.ndarray, upper: np.ndarray):
     """The evaluation of the decisions a closed-loop rollout chooses knot by knot, from the knot's start
     state: c_l = c_l + alpha k_l + K_l (x_l - x_l). Open loop, they reproduce the same motion."""
-    with problem.simulator.clock.measure("rollout"):
-        return _closed_loop_rollout(problem, expansion, decisions, k, K, alpha, lower, upper)
-
-
-def _closed_loop_rollout(problem, expansion, decisions, k, K, alpha, lower, upper):
-    model, S = problem.scene.model, problem.steps_per_knot
-    N = decisions.shape[0]
     P = problem.decision_map()
-    data = mujoco.MjData(model)
-    mujoco.mj_setState(model, data, problem.initial_state, FULL_PHYSICS)
-    data.qacc_warmstart[:] = 0  # as the open-loop rollouts start
     trial = decisions.copy()
-    states = np.empty((N * S, mujoco.mj_stateSize(model, FULL_PHYSICS)))
-    sensordata = np.empty((N * S, model.nsensordata))
-    for l in range(N):
-        start = problem.initial_state if l == 0 else states[l * S - 1]
+
+    def policy(l: int, start: np.ndarray) -> np.ndarray:
         deviation = problem.state_difference(start, expansion.knot_states[l])[0]
         trial[l] = np.clip(decisions[l] + alpha * k[l] + K[l] @ deviation, lower[l], upper[l])
-        data.ctrl[:] = P @ trial[l]
-        for t in range(l * S, (l + 1) * S):
-            mujoco.mj_step(model, data)
-            mujoco.mj_getState(model, data, states[t], FULL_PHYSICS)
-            sensordata[t] = data.sensordata
-    warnings = {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
+        return P @ trial[l]
+
+    states, sensordata, warnings = problem.simulator.closed_loop_rollout(problem.initial_state, policy)
     return problem.remember(trial.reshape(-1), states, sensordata, warnings)

@@ -221,6 +221,7 @@ class PhysicalStage:
 
     contact_weight: float
     joint_speed_weight: float
+    joint_position_weight: float
     max_iter: int
     only_if_beyond_limits: bool
 
@@ -232,6 +233,8 @@ class PhysicalStages:
     contact_weight: tuple[float, ...] = setting("weight of the plate-object gap, squared, from the touch-down on",
                                                 minimum=0.0)
     joint_speed_weight: tuple[float, ...] = setting("weight of the joint speeds beyond their margin", minimum=0.0)
+    joint_position_weight: tuple[float, ...] = setting("weight of the joint positions beyond their margin",
+                                                       minimum=0.0)
     max_iter: tuple[int, ...] = setting("solver iterations of the stage", minimum=1)
     only_if_beyond_limits: tuple[bool, ...] = setting("run only while the best plan so far is beyond the arm's "
                                                       "limits (joint speeds or ranges)")
@@ -243,7 +246,8 @@ class PhysicalStages:
                              f"{[f.name for f in dataclasses.fields(self)]}")
 
     def __iter__(self):
-        return (PhysicalStage(*values) for values in zip(self.contact_weight, self.joint_speed_weight, self.max_iter,
+        return (PhysicalStage(*values) for values in zip(self.contact_weight, self.joint_speed_weight,
+                                                           self.joint_position_weight, self.max_iter,
                                                            self.only_if_beyond_limits))
 
 
@@ -272,11 +276,13 @@ class StagesSettings:
 
 @dataclass(frozen=True)
 class LimitSettings:
-    joint_speed_weight: float = setting("weight of (|qdot| / limit - margin)^2 beyond the margin", minimum=0.0)
+    joint_speed_weight: float = setting("the discovery's weight of (|qdot| / limit - margin)^2 beyond the margin",
+                                        minimum=0.0)
     joint_speed_margin: float = setting("fraction of the velocity limit where the speed term starts", positive=True)
     max_joint_speed_ratio: float = setting("a plan faster than this fraction of a velocity limit is no success",
                                            positive=True)
-    joint_position_weight: float = setting("weight of the joint positions beyond their margin", minimum=0.0)
+    joint_position_weight: float = setting("the discovery's weight of the joint positions beyond their margin",
+                                           minimum=0.0)
     joint_position_margin_rad: float = setting("margin inside each joint's range (rad)", minimum=0.0)
     object_velocity_weight: float = setting("weight of the object's final velocity", minimum=0.0)
 

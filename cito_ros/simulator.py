@@ -10,6 +10,7 @@ the same dynamics.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -170,6 +171,27 @@ class Simulator:
                        np.ascontiguousarray(step_controls), skip_checks=True, nstep=nstep,
                        initial_warmstart=np.zeros((batch, self.model.nv)), state=states, sensordata=sensordata)
         return states, sensordata, _warnings(datas)
+
+    def closed_loop_rollout(self, initial_state: np.ndarray, policy: Callable[[int, np.ndarray], np.ndarray]
+                            ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+        """One rollout whose knot controls are chosen knot by knot: policy(l, x_l) -> (nu,) the controls
+        of knot l from its start state x_l. Each knot is stepped natively, the constraint solver's
+        warmstart carried across knots, so the open-loop rollout of the chosen controls is the same
+        motion bit for bit. Returns states (n_steps, nstate), sensordata and the MuJoCo warnings."""
+        with self.clock.measure("rollout"):
+            data, S, nu = self._data[0], self.steps_per_knot, self.model.nu
+            _clear_warnings(data)
+            states = np.empty((self.n_steps, self.nstate))
+            sensordata = np.empty((self.n_steps, self.model.nsensordata))
+            warmstart, controls = np.zeros((1, self.model.nv)), np.empty((1, S, nu))
+            for l in range(self.n_knots):
+                start = initial_state if l == 0 else states[l * S - 1]
+                controls[0] = policy(l, start)
+                self._serial.rollout([self.model], [data], start[None], controls, skip_checks=True, nstep=S,
+                                     initial_warmstart=warmstart, state=states[l * S:(l + 1) * S][None],
+                                     sensordata=sensordata[l * S:(l + 1) * S][None])
+                warmstart[0] = data.qacc_warmstart
+            return states, sensordata, _warnings([data])
 
     # ------------------------------------------------------------------ outputs
 

@@ -242,7 +242,7 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
     reach = np.where(np.arange(T) >= int(fraction * T), 1.0 / T, 0.0)
     discovery = PushProblem(base.simulator, base.initial_state, base.task,
                             stage_cost(settings, base.weights, True, settings.stages.discovery.reach_weight, reach,
-                                       limits.joint_speed_weight),
+                                       limits.joint_speed_weight, limits.joint_position_weight),
                             base.derivative_settings, base.position_scale_min_m)
     executor = physical_twin(discovery, discovery.cost)
     setup_s = time.perf_counter() - began
@@ -261,7 +261,7 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
         if spec.only_if_beyond_limits and not best[0][0]:  # best[0][0]: beyond the arm's limits
             continue
         problem = physical_twin(discovery, stage_cost(settings, base.weights, False, spec.contact_weight, touch,
-                                                      spec.joint_speed_weight))
+                                                      spec.joint_speed_weight, spec.joint_position_weight))
         stage, executed = run.stage(problem, settings.stages.solver, problem.with_torques(torques),
                                     problem.lower, problem.upper, f"physical {index + 1}", spec.max_iter, executor)
         torques = problem.split(stage.z)[0]
@@ -273,10 +273,11 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
 
 
 def stage_cost(settings: Settings, weights, virtual_force: bool, contact_weight: float,
-               contact_profile: np.ndarray | None, joint_speed_weight: float) -> StageCost:
+               contact_profile: np.ndarray | None, joint_speed_weight: float,
+               joint_position_weight: float) -> StageCost:
     limits = settings.limits
     return StageCost(weights, virtual_force, joint_speed_weight, limits.joint_speed_margin,
-                     limits.joint_position_weight, limits.joint_position_margin_rad,
+                     joint_position_weight, limits.joint_position_margin_rad,
                      0.0 if virtual_force else limits.object_velocity_weight, contact_weight, contact_profile)
 
 

@@ -87,6 +87,28 @@ def test_one_and_two_threads_give_identical_results(scenes, start_states):
     assert np.array_equal(single.q[1:], states_2[4][:, 1 + scene.arm_qpos_adr])
 
 
+def test_a_closed_loop_rollout_is_replayed_bit_for_bit_open_loop(simulators, start_states):
+    # iLQR's forward pass chooses each knot's controls from the state it reaches; the plan it keeps is
+    # those controls, executed open loop, so both rollouts must be the same motion to the last bit
+    simulator = simulators["vscm"]
+    scene = simulator.scene
+    feedforward = simulator.knot_controls(approach_torques(simulator, seed=5), np.full(simulator.n_knots, 80.0))
+    chosen = np.empty_like(feedforward)
+
+    def policy(knot, state):
+        qvel = state[scene.state_qvel_adr:scene.state_qvel_adr + scene.model.nv][scene.arm_dof_adr]
+        chosen[knot] = feedforward[knot]
+        chosen[knot, scene.motor_ids] -= 2.0 * qvel  # damping: the controls depend on the state reached
+        return chosen[knot]
+
+    states, sensordata, warnings = simulator.closed_loop_rollout(start_states[6], policy)
+    open_states, open_sensordata, open_warnings = simulator.rollout_batch(
+        start_states[6][None], simulator.step_controls(chosen)[None])
+    assert np.array_equal(states, open_states[0]) and np.array_equal(sensordata, open_sensordata[0])
+    assert warnings == open_warnings == {}
+    assert np.abs(chosen - feedforward).max() > 0.1  # the feedback acted
+
+
 def test_models_with_different_parameters_coexist(settings, start_states):
     soft = settings.with_overrides({"contact_models.vscm.curvature": 1000.0})
     stiff_scene = Scene(contact_model("vscm", settings.contact_models))
