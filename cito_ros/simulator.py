@@ -80,8 +80,6 @@ class Simulator:
         self.timestep_s = timestep
         self.nthread = nthread
         self.nstate = mujoco.mj_stateSize(self.model, FULL_PHYSICS)
-        self._qpos_offset = scene.state_qpos_adr
-        self._qvel_offset = scene.state_qvel_adr
         self._serial = mj_rollout.Rollout(nthread=0)
         self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
         self._data = [mujoco.MjData(self.model) for _ in range(nthread)]
@@ -200,8 +198,8 @@ class Simulator:
         """Decode one rollout's states and sensor values into a Trajectory."""
         scene, sensors = self.scene, self.scene.sensors
         all_states = np.vstack([initial_state[None], states])
-        qpos = all_states[:, self._qpos_offset:self._qpos_offset + self.model.nq]
-        qvel = all_states[:, self._qvel_offset:self._qvel_offset + self.model.nv]
+        qpos = all_states[:, scene.state_qpos_adr:scene.state_qpos_adr + self.model.nq]
+        qvel = all_states[:, scene.state_qvel_adr:scene.state_qvel_adr + self.model.nv]
         contact_control = controls[:, scene.contact_actuator_id].copy()
         obj = scene.object_qpos_adr
         return Trajectory(

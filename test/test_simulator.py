@@ -96,9 +96,8 @@ def test_a_closed_loop_rollout_is_replayed_bit_for_bit_open_loop(simulators, sta
     chosen = np.empty_like(feedforward)
 
     def policy(knot, state):
-        qvel = state[scene.state_qvel_adr:scene.state_qvel_adr + scene.model.nv][scene.arm_dof_adr]
         chosen[knot] = feedforward[knot]
-        chosen[knot, scene.motor_ids] -= 2.0 * qvel  # damping: the controls depend on the state reached
+        chosen[knot, scene.motor_ids] -= 2.0 * scene.arm_qvel(state)  # damping: the controls depend on the state reached
         return chosen[knot]
 
     states, sensordata, warnings = simulator.closed_loop_rollout(start_states[6], policy)
