@@ -12,8 +12,8 @@ expansion was taken about, where contact events make open-loop steps leave the m
 validity after a few hundredths of a newton metre (the failure of a plain Gauss-Newton step here).
 The controls a trial applies are its new decisions, so its open-loop rollout is the same motion.
 
-Regularization: mu (Levenberg-Marquardt on the scaled decisions) falls after a successful
-iteration and rises after a failed one. The shared stopping rules run in IterationMonitor.
+Regularization: mu (Levenberg-Marquardt on the scaled decisions) falls after an iteration whose
+full step was kept and rises after a failed one. The shared stopping rules run in IterationMonitor.
 """
 from __future__ import annotations
 
@@ -76,7 +76,7 @@ class IlqrSolver:
                         (point.cost - trial.cost) / (-expected * alpha) >= self.accept_ratio:
                     z, point, accepted = trial.z, trial, True
                 if accepted:
-                    mu = mu / self.mu_factor if mu / self.mu_factor >= self.mu_min else 0.0
+                    mu = self._after_step(mu, alpha)
                 else:
                     mu = max(mu * self.mu_factor, self.mu_min)
             if stop is not None:
@@ -88,6 +88,16 @@ class IlqrSolver:
         if stop is not None and stop is not Status.CONVERGED:
             status = stop
         return monitor.outcome(z, status, point, 0.0)
+
+    def _after_step(self, mu: float, alpha: float) -> float:
+        """mu after a step of length alpha was accepted: lower only after a full-length step. The step
+        length the line search kept says how far the Gauss-Newton model held; lowering mu after every
+        success, as plain Levenberg-Marquardt does, made every other iteration pay for a failed trial
+        (four rollouts), because contact leaves the model's region of validity after a tenth of the
+        step in most iterations (README: 90 % vs 82-84 % of the targets, half the solve time)."""
+        if alpha >= self.step_lengths.max():
+            return mu / self.mu_factor if mu / self.mu_factor >= self.mu_min else 0.0
+        return mu
 
 
 def _backward(expansion, decisions: np.ndarray, lower: np.ndarray, upper: np.ndarray, scale: np.ndarray,

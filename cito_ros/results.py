@@ -24,6 +24,7 @@ class Status(enum.Enum):
     CONVERGED = "converged"              # the solver met its tolerance
     ACCEPTABLE = "acceptable"            # the solver met its acceptable-level tolerance
     STALLED = "stalled"                  # the cost stopped improving (stall_iterations, stall_tolerance)
+    GOAL_REACHED = "goal_reached"        # the stage's plan, executed, is at the goal with margin: done early
     ITERATION_LIMIT = "iteration_limit"  # best iterate after max_iter iterations
     TIME_LIMIT = "time_limit"            # best iterate when the time limit ran out
     CANCELLED = "cancelled"              # best iterate when cancel was set
@@ -33,7 +34,7 @@ class Status(enum.Enum):
     @property
     def finished(self) -> bool:
         """Whether the solver stopped on its own convergence test."""
-        return self in (Status.CONVERGED, Status.ACCEPTABLE, Status.STALLED)
+        return self in (Status.CONVERGED, Status.ACCEPTABLE, Status.STALLED, Status.GOAL_REACHED)
 
     @property
     def interrupted(self) -> bool:

@@ -257,14 +257,14 @@ class StagesSettings:
                           choices=("ilqr", "least_squares", "ipopt"))
     starts: tuple[float, ...] = setting("one discovery per entry, drawing the plate onto the object from this "
                                         "fraction of the horizon on", minimum=0.0)
-    starts_per_round: int = setting("starts solved per round; no further round once a round's best plan "
-                                    "succeeds", minimum=1)
-    horizon_scales: tuple[float, ...] = setting("the starts' rounds are solved at horizon_s times each of these in "
+    horizon_scales: tuple[float, ...] = setting("the starts are solved at horizon_s times each of these in "
                                                 "turn", positive=True)
-    parallel: bool = setting("solve a round's starts side by side on threads")
+    parallel: bool = setting("solve the next start speculatively beside the current one (the same plan)")
     discovery: DiscoverySettings = setting("the contact model's stage")
     physical: PhysicalStages = setting("the stages without the virtual force")
     touch_force_N: float = setting("a virtual force above this marks the discovery's touch-down", positive=True)
+    goal_margin: float = setting("a start's stages end once its executed plan is within this fraction of the success "
+                                 "tolerances (at most 1)", positive=True)
 
     def check(self, path: str) -> None:
         if not self.starts or any(start >= 1.0 for start in self.starts):
@@ -272,6 +272,9 @@ class StagesSettings:
                              f"got {list(self.starts)}")
         if not self.horizon_scales:
             raise ValueError(f"{path}.horizon_scales must list at least one scale of horizon_s")
+        if self.goal_margin > 1.0:
+            raise ValueError(f"{path}.goal_margin must be a fraction of the success tolerances in (0, 1], "
+                             f"got {self.goal_margin}")
 
 
 @dataclass(frozen=True)

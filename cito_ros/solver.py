@@ -82,8 +82,10 @@ class IterationMonitor:
 
     def __init__(self, settings: SolverSettings, started: float, iteration_offset: int,
                  violation_tolerance: float, cancel: threading.Event | None,
-                 callback: Callable[[IterationLog], None] | None, stage: str = "", virtual_force: bool = True):
+                 callback: Callable[[IterationLog], None] | None, stage: str = "", virtual_force: bool = True,
+                 goal: Callable[[NlpPoint], bool] | None = None):
         self.settings, self.started, self.iteration_offset = settings, started, iteration_offset
+        self.goal = goal  # a point at which the stage has done its job (Status.GOAL_REACHED)
         self.stage, self.virtual_force = stage, virtual_force
         self.violation_tolerance = violation_tolerance
         self.cancel, self.callback = cancel, callback
@@ -105,6 +107,9 @@ class IterationMonitor:
             self.callback(entry)
         if self.cancel is not None and self.cancel.is_set():
             return Status.CANCELLED
+        if self.goal is not None and last is not None and last.finite and last_violation <= self.violation_tolerance \
+                and self.goal(last):
+            return Status.GOAL_REACHED
         if elapsed > self.settings.time_limit_s:
             return Status.TIME_LIMIT
         if self._stalled():

@@ -7,8 +7,8 @@ gradient is no descent direction; IPOPT restarted from its last iterate (a fresh
 and barrier) leaves it.
 
 Physical pipeline: the contact model discovers contact, the plan that leaves is refined without the
-virtual force. For each of `stages.starts`, in rounds of `stages.starts_per_round` (a round side by side
-when `stages.parallel`) until a round's best plan succeeds:
+virtual force. For each of `stages.starts` at each of `stages.horizon_scales`, in that order, until one
+succeeds (two side by side when `stages.parallel`, see `solve_physical`):
 
 1. discovery: the contact model's problem from zero torques, plus the arm's limits and a reach
    term, the plate-object gap squared from the start's fraction of the horizon on. The virtual force
@@ -20,8 +20,10 @@ when `stages.parallel`) until a round's best plan succeeds:
    strike, whose outcome depends smoothly on the torques. A stage marked only_if_beyond_limits runs
    only while the best plan still exceeds the arm's joint speed limits or ranges.
 
-Every stage's torques, executed without the virtual force, are a candidate; the plan returned is the
-best of all (within the arm's speed limits and ranges first, then at the goal, then closest to it).
+A stage without the virtual force ends as soon as its plan, executed, is at the goal with a margin
+(`stages.goal_margin`), and the start with it. Every stage's torques, executed without the virtual
+force, are a candidate; the plan returned is the first start's that succeeds, or else the best of all
+(within the arm's speed limits and ranges first, then at the goal, then closest to it).
 """
 from __future__ import annotations
 
@@ -87,10 +89,22 @@ class Executed:
         beyond_limits, away, _ = rank
         return not beyond_limits and not away
 
+    def reaches(self, settings: Settings) -> bool:
+        """Whether it is at the goal with the margin that ends the stages early (stages.goal_margin):
+        within that fraction of the success tolerances and of the arm's limits."""
+        task, limits, margin = settings.task, settings.limits, settings.stages.goal_margin
+        return (self.position_error_m < margin * task.success_position_error_m
+                and self.orientation_error_rad < margin * task.success_orientation_error_rad
+                and self.max_joint_speed_ratio <= limits.max_joint_speed_ratio and self.joint_range_excess_rad == 0.0)
+
 
 def execute(executor: PushProblem, torques: np.ndarray) -> Executed:
     """The executed errors and arm limits of torques, by `executor` (no virtual force)."""
-    evaluation = executor.evaluate(executor.with_torques(torques))
+    return judge(executor, executor.evaluate(executor.with_torques(torques)))
+
+
+def judge(executor: PushProblem, evaluation) -> Executed:
+    """The executed errors and arm limits of an evaluation of `executor` (no virtual force)."""
     if not evaluation.finite:
         return Executed(math.inf, math.inf, math.inf, math.inf)
     scene = executor.scene
@@ -101,11 +115,10 @@ def execute(executor: PushProblem, torques: np.ndarray) -> Executed:
 
 
 class _Clock:
-    """What the starts of one solve share: the clock, the settings, the callback and cancellation."""
+    """What the starts of one solve share: the clock, the settings and the callback."""
 
-    def __init__(self, settings: Settings, callback: Callable[[IterationLog], None] | None,
-                 cancel: threading.Event | None):
-        self.settings, self.callback, self.cancel = settings, callback, cancel
+    def __init__(self, settings: Settings, callback: Callable[[IterationLog], None] | None):
+        self.settings, self.callback = settings, callback
         self.started = time.perf_counter()
         self._lock = threading.Lock()
 
@@ -121,8 +134,8 @@ class _Clock:
 class _Run:
     """The stages of one start: their log, records and candidates."""
 
-    def __init__(self, clock: _Clock, prefix: str):
-        self.clock, self.prefix = clock, prefix
+    def __init__(self, clock: _Clock, prefix: str, stop: "_Stop | threading.Event | None"):
+        self.clock, self.prefix, self.stop = clock, prefix, stop
         self.log: list[IterationLog] = []
         self.records: list[StageRecord] = []
         self.interrupted: Status | None = None
@@ -135,9 +148,12 @@ class _Run:
                                        max_iter=min(max_iter, self.clock.settings.solver.max_iter))
         solver: Solver = IpoptSolver(settings) if problem.n_constraints else SOLVERS[kind](settings)
         offset = self.log[-1].iteration + 1 if self.log else 0
+        # a stage without the virtual force evaluates the plan as executed: it ends once that is at the goal
+        goal = None if problem.cost.virtual_force else \
+            (lambda point: judge(problem, point).reaches(self.clock.settings))
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
-                                   self.clock.cancel, self.clock.report, f"{self.prefix}{name}",
-                                   problem.cost.virtual_force)
+                                   self.stop, self.clock.report, f"{self.prefix}{name}",
+                                   problem.cost.virtual_force, goal)
         phases, began = problem.simulator.clock.read(), time.perf_counter()
         outcome = solver.solve(problem, start, lower, upper, monitor)
         phases, solved = problem.simulator.clock.read() - phases, time.perf_counter()
@@ -161,12 +177,12 @@ def solve_paper(posed: PlanningProblem, settings: Settings, *,
                 iteration_callback: Callable[[IterationLog], None] | None = None,
                 cancel: threading.Event | None = None) -> Outcome:
     """The paper's problem from zero torques by IPOPT, with restarts while it ends short of the task."""
-    clock = _Clock(settings, iteration_callback, cancel)
+    clock = _Clock(settings, iteration_callback)
     problem = posed.problem
     began = time.perf_counter()
     executor = physical_twin(problem, StageCost.paper(problem.weights))
     setup_s = time.perf_counter() - began
-    run = _Run(clock, "")
+    run = _Run(clock, "", cancel)
     stage, executed = run.stage(problem, "ipopt", problem.initial_guess, problem.lower, problem.upper, "paper",
                                 settings.solver.max_iter, executor)
     best, best_error = stage, planned_error(problem, stage.z)
@@ -201,40 +217,84 @@ def physical_twin(problem: PushProblem, cost: StageCost) -> PushProblem:
 def solve_physical(settings: Settings, request: PushRequest, *,
                    iteration_callback: Callable[[IterationLog], None] | None = None,
                    cancel: threading.Event | None = None) -> Outcome:
-    """The starts' discoveries and physical stages, round by round until a round's best plan succeeds;
-    the best executed plan of all. Each start is a lottery ticket of a non-convex problem: most
-    pushes succeed in the first round and pay for one, the rest draw again."""
-    clock = _Clock(settings, iteration_callback, cancel)
+    """Every start at every horizon (stages.starts within stages.horizon_scales), in that order, until
+    one succeeds: the plan is the first success in that order, or the best executed plan of all.
+    Each start is a lottery ticket of a non-convex problem: about half the pushes succeed with the
+    first and pay for one. With stages.parallel the next start runs beside the earliest unfinished
+    one, on a thread of its own, and is abandoned when an earlier start succeeds: the threads make
+    the solve faster but never change which plan is returned."""
+    clock = _Clock(settings, iteration_callback)
     stages = settings.stages
-    starts, width, scales = stages.starts, stages.starts_per_round, stages.horizon_scales
-    parallel = stages.parallel and min(width, len(starts)) > 1
-    per_start = settings.with_overrides({"gradient.threads": 1}) if parallel else settings
-    rounds = []
-    for horizon_s in settings.round_horizons_s:
-        horizon = per_start.with_overrides({"horizon_s": horizon_s})
-        prefix = f"horizon {horizon_s:g} s, " if len(scales) > 1 else ""
-        jobs = [(horizon, request, fraction, f"{prefix}start {i + 1}: " if len(starts) > 1 else prefix)
-                for i, fraction in enumerate(starts)]
-        rounds += [jobs[first:first + width] for first in range(0, len(jobs), width)]
-    results = []
-    for round_jobs in rounds:
-        if parallel and len(round_jobs) > 1:
-            with concurrent.futures.ThreadPoolExecutor(len(round_jobs), thread_name_prefix="cito_start") as pool:
-                results += pool.map(lambda job: _solve_start(clock, *job), round_jobs)
-        else:
-            results += [_solve_start(clock, *job) for job in round_jobs]
-        rank, outcome = min(results, key=lambda result: result[0])
+    labelled = len(stages.starts) > 1
+    jobs = [(horizon_s, fraction, (f"horizon {horizon_s:g} s, " if len(stages.horizon_scales) > 1 else "")
+             + (f"start {i + 1}: " if labelled else ""))
+            for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
+    width = 2 if stages.parallel and len(jobs) > 1 else 1
+    abandoned = [threading.Event() for _ in jobs]
+    results: dict[int, tuple] = {}
+
+    def decided() -> bool:
+        """Whether the finished starts settle the plan: the first unfinished start comes after a success
+        (or an interruption), or none is left."""
+        for index in range(len(jobs)):
+            if index not in results:
+                return False
+            rank, outcome = results[index]
+            if outcome.status.interrupted or Executed.succeeds(rank):
+                return True
+        return True
+
+    def solve(index: int):
+        horizon_s, fraction, prefix = jobs[index]
+        overrides = {"horizon_s": horizon_s, **({"gradient.threads": 1} if width > 1 else {})}
+        return _solve_start(clock, _Stop(cancel, abandoned[index]), settings.with_overrides(overrides), request,
+                            fraction, prefix)
+
+    if width == 1:
+        while not decided():
+            results[len(results)] = solve(len(results))
+    else:
+        with concurrent.futures.ThreadPoolExecutor(width, thread_name_prefix="cito_start") as pool:
+            running: dict[concurrent.futures.Future, int] = {}
+            submitted = 0
+            while not decided():
+                # no start after a success is needed, whatever the earlier ones give
+                while len(running) < width and submitted < len(jobs) and \
+                        not any(Executed.succeeds(rank) for rank, _ in results.values()):
+                    running[pool.submit(solve, submitted)] = submitted
+                    submitted += 1
+                finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+                for future in finished:
+                    results[running.pop(future)] = future.result()
+            for index in running.values():  # later starts, no longer needed
+                abandoned[index].set()
+            concurrent.futures.wait(running)
+    ordered = []
+    for index in sorted(results):
+        ordered.append(results[index])
+        rank, outcome = results[index]
         if outcome.status.interrupted or Executed.succeeds(rank):
             break
-    _, outcome = min(results, key=lambda result: result[0])
-    log = tuple(entry for _, result in results for entry in result.log)
-    records = tuple(record for _, result in results for record in result.stages)
-    interrupted = next((result.status for _, result in results if result.status.interrupted), None)
+    _, outcome = min(ordered, key=lambda result: result[0])
+    log = tuple(entry for _, result in ordered for entry in result.log)
+    records = tuple(record for _, result in ordered for record in result.stages)
+    interrupted = next((result.status for _, result in ordered if result.status.interrupted), None)
     return dataclasses.replace(outcome, log=log, stages=records, status=interrupted or outcome.status,
-                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in results))
+                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in ordered))
 
 
-def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fraction: float, prefix: str):
+class _Stop:
+    """What a start's solver polls to stop: the solve's cancellation or the start's abandonment."""
+
+    def __init__(self, *events: threading.Event | None):
+        self.events = [event for event in events if event is not None]
+
+    def is_set(self) -> bool:
+        return any(event.is_set() for event in self.events)
+
+
+def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRequest, fraction: float,
+                 prefix: str):
     began = time.perf_counter()
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
@@ -246,7 +306,7 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
                             base.derivative_settings, base.position_scale_min_m)
     executor = physical_twin(discovery, discovery.cost)
     setup_s = time.perf_counter() - began
-    run = _Run(clock, prefix)
+    run = _Run(clock, prefix, stop)
     stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
                                 discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
     planned_z = stage.z
@@ -262,11 +322,13 @@ def _solve_start(clock: _Clock, settings: Settings, request: PushRequest, fracti
             continue
         problem = physical_twin(discovery, stage_cost(settings, base.weights, False, spec.contact_weight, touch,
                                                       spec.joint_speed_weight, spec.joint_position_weight))
-        stage, executed = run.stage(problem, settings.stages.solver, problem.with_torques(torques),
+        stage, result = run.stage(problem, settings.stages.solver, problem.with_torques(torques),
                                     problem.lower, problem.upper, f"physical {index + 1}", spec.max_iter, executor)
         torques = problem.split(stage.z)[0]
-        if executed.rank(settings) < best[0]:
-            best = (executed.rank(settings), torques, stage.status)
+        if result.rank(settings) < best[0]:
+            best = (result.rank(settings), torques, stage.status)
+        if result.reaches(settings):
+            break
     rank, chosen, status = best
     return rank, Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
                          tuple(run.records), clock.elapsed(), setup_s)

@@ -5,6 +5,7 @@ import threading
 import numpy as np
 import pytest
 
+from cito_ros.ilqr import IlqrSolver
 from cito_ros.planner import plan_push
 from cito_ros.results import PHASE_METRICS, IterationLog, Status
 
@@ -121,10 +122,37 @@ def test_same_case_twice_gives_identical_plans(settings):
     assert first.metrics.position_error_m == second.metrics.position_error_m
 
 
-def test_starts_side_by_side_or_one_after_the_other_give_the_same_plan(settings):
-    parallel = plan_push("scm", 6, settings=settings.with_overrides({"solver.max_iter": 5}))
-    serial = plan_push("scm", 6, settings=settings.with_overrides({"solver.max_iter": 5, "stages.parallel": False}))
+@pytest.mark.parametrize("max_iter", [100, 1])
+def test_starts_side_by_side_or_one_after_the_other_give_the_same_plan(settings, max_iter):
+    """Side by side, a later start is abandoned once an earlier one succeeds (max_iter 100: the first
+    succeeds), and an early finish of a later start waits for the earlier ones (max_iter 1: none
+    succeeds, every start runs): the plan and its stages are those of the starts one after the other."""
+    one_horizon = {"solver.max_iter": max_iter, "stages.horizon_scales": [1.0]}
+    parallel, serial = (plan_push("scm", 7, target_position_m=SHORT_PUSH_M, settings=settings.with_overrides(
+        {**one_horizon, "stages.parallel": side_by_side})) for side_by_side in (True, False))
     assert np.array_equal(parallel.knot_torques_Nm, serial.knot_torques_Nm)
+    assert [(s.name, s.status, s.iterations) for s in parallel.stages] == \
+        [(s.name, s.status, s.iterations) for s in serial.stages]
+    assert parallel.metrics.success == (max_iter == 100)
+    starts = {s.name.split(":")[0] for s in serial.stages}
+    assert len(starts) == (1 if max_iter == 100 else len(settings.stages.starts))
+
+
+def test_a_start_ends_once_its_executed_plan_is_at_the_goal_with_margin(solved, settings):
+    """The stages without the virtual force stop at the goal (stages.goal_margin of the tolerances), and
+    no later start runs after a success."""
+    result = solved["vscm"]
+    last = result.stages[-1]
+    assert last.status is Status.GOAL_REACHED and "physical" in last.name
+    assert result.metrics.position_error_m < settings.stages.goal_margin * settings.task.success_position_error_m
+    assert sum(stage.status is Status.GOAL_REACHED for stage in result.stages) == 1
+
+
+def test_ilqr_lowers_its_regularization_only_after_a_full_step(settings):
+    solver = IlqrSolver(settings.solver)
+    full, short = solver.step_lengths.max(), solver.step_lengths.min()
+    assert solver._after_step(1.0, full) == pytest.approx(1.0 / solver.mu_factor)
+    assert solver._after_step(1.0, short) == 1.0
 
 
 class TestBadRequests:
