@@ -133,17 +133,20 @@ def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target
             target = np.array([target[0], target[1], start[2]])
         if target.shape != (3,):
             raise ValueError(f"target position must be (x, y) or (x, y, z), got shape {target.shape}")
-    task = PushTask(target, target_yaw_rad)
     low, high, _ = scene.table_top()
     half = float(scene.object_half_size[0])
-    if np.any(task.target_position_m[:2] < low + half) or np.any(task.target_position_m[:2] > high - half):
-        raise ValueError(f"target ({task.target_position_m[0]:.3f}, {task.target_position_m[1]:.3f}) m is off the "
+    if np.any(target[:2] < low + half) or np.any(target[:2] > high - half):
+        raise ValueError(f"target ({target[0]:.3f}, {target[1]:.3f}) m is off the "
                          f"table: the object must end within x [{low[0] + half:.3f}, {high[0] - half:.3f}], "
                          f"y [{low[1] + half:.3f}, {high[1] - half:.3f}] m")
     height_tolerance = settings.task.target_height_tolerance_m
-    if abs(task.target_position_m[2] - start[2]) > height_tolerance:
-        raise ValueError(f"target z {task.target_position_m[2]:.3f} m is not the object's resting height "
+    if abs(target[2] - start[2]) > height_tolerance:
+        raise ValueError(f"target z {target[2]:.3f} m is not the object's resting height "
                          f"{start[2]:.3f} m (+-{height_tolerance} m): pushing cannot lift it")
+    # a pushed object ends at its resting height: a z within the tolerance says "on the table", so the
+    # same goal with another such z (the table top plus the half edge is 0.1 mm above the settled cube)
+    # is the same problem and the same plan
+    task = PushTask(np.array([target[0], target[1], start[2]]), target_yaw_rad)
     reach = scene.push_reach_m()
     distance = float(np.linalg.norm(task.target_position_m[:2]))
     if distance > reach:

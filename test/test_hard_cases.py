@@ -13,9 +13,9 @@ from cito_ros.settings import load_settings
 from cito_ros.stages import Outcome, physical_twin
 
 CASES = load_cases()
-# one round of starts: these tests are about statuses and numbers, not success, and the later rounds
-# of a missed push (cito_ros.stages.solve_physical) would only repeat them over longer horizons
-ONE_ROUND = load_settings().with_overrides({"stages.horizon_scales": [1.0]})
+# the first two starts at one horizon: these tests are about statuses and numbers, not success, and the
+# further starts of a missed push (cito_ros.stages.solve_physical) would only repeat them
+TWO_STARTS = load_settings().with_overrides({"stages.horizon_scales": [1.0], "stages.starts": [0.3, 0.5]})
 STATUSES = {s.value for s in Status} | {"invalid_request"}
 EXPECTED = {"far_0.40m", "far_0.50m", "lateral_+0.15m", "lateral_-0.15m", "yaw_30deg", "yaw_45deg", "heavy_2kg",
             "light_50g", "friction_0.2", "friction_1.2", "timestep_2ms", "knots_40", "near_joint_limits",
@@ -46,7 +46,7 @@ def test_far_starts_are_0_4_and_0_5_m_away(scenes):
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_every_case_ends_with_a_status_and_finite_numbers(name):
-    record, result = run_case(CASES[name], "scm", ONE_ROUND)
+    record, result = run_case(CASES[name], "scm", TWO_STARTS)
     check_record(record, result)
 
 
@@ -63,8 +63,8 @@ def test_a_target_already_reached_stays_reached():
 
 @pytest.mark.parametrize("name", ["lateral_+0.15m", "timestep_2ms", "knots_40"])
 def test_a_case_run_twice_gives_identical_results(name):
-    first, a = run_case(CASES[name], "scm", ONE_ROUND)
-    second, b = run_case(CASES[name], "scm", ONE_ROUND)
+    first, a = run_case(CASES[name], "scm", TWO_STARTS)
+    second, b = run_case(CASES[name], "scm", TWO_STARTS)
     assert np.array_equal(a.knot_torques_Nm, b.knot_torques_Nm)
     assert first["position_error_m"] == second["position_error_m"] and first["status"] == second["status"]
 
@@ -91,5 +91,5 @@ def test_mujoco_warnings_are_reported_as_a_status(tmp_path, settings):
 @pytest.mark.parametrize("model", ["cccm", "vscm"])
 def test_every_case_with_the_other_models(model):
     for name in sorted(EXPECTED):
-        record, result = run_case(CASES[name], model, ONE_ROUND)
+        record, result = run_case(CASES[name], model, TWO_STARTS)
         check_record(record, result)

@@ -47,7 +47,7 @@ HORIZON_STEPS = {round(h / load_settings().scene.timestep_s) for h in load_setti
 
 
 def steps(response) -> int:
-    """The simulation steps of a plan: one of the horizons its rounds are solved at."""
+    """The simulation steps of a plan: one of the horizons its starts are solved at."""
     end = response.trajectory.points[-1].time_from_start
     count = round((end.sec + 1e-9 * end.nanosec) / load_settings().scene.timestep_s)
     assert count in HORIZON_STEPS

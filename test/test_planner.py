@@ -5,6 +5,7 @@ import threading
 import numpy as np
 import pytest
 
+from cito_ros.builder import PushRequest, build_problem
 from cito_ros.ilqr import IlqrSolver
 from cito_ros.planner import plan_push
 from cito_ros.results import PHASE_METRICS, IterationLog, Status
@@ -177,6 +178,13 @@ class TestReach:
     def test_off_the_table(self, settings):
         with pytest.raises(ValueError, match=r"target \(1.900, 0.000\) m is off the table"):
             plan_push("vscm", 7, settings=settings, target_position_m=[1.9, 0.0])
+
+    def test_a_target_z_within_the_tolerance_is_the_resting_height(self, settings):
+        """z = table top + half edge (the demo's, 0.1 mm above the settled cube) poses the same problem
+        as (x, y) alone."""
+        spelled = [build_problem(settings, PushRequest("vscm", 7, None, target, 0.0, None, None)).problem.task
+                   for target in ([1.09, 0.0], [1.09, 0.0, 0.1])]
+        assert np.array_equal(spelled[0].target_position_m, spelled[1].target_position_m)
 
     def test_lifted(self, settings):
         with pytest.raises(ValueError, match="is not the object's resting height"):

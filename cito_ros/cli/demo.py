@@ -8,6 +8,7 @@ leaves the bag, stops the node and exits 0 when a plan came back.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import random
 import signal
@@ -71,7 +72,9 @@ def _call(args) -> int:
 
         def feedback(message) -> None:
             f = message.feedback
-            advance(bar, f.iteration, f"{f.stage}, best executed error {100 * f.best_executed_position_error_m:.2f} cm")
+            best = f.best_executed_position_error_m  # NaN until a plan has been executed
+            advance(bar, f.iteration, f"{f.stage}, best executed error "
+                                      + (f"{100 * best:.2f} cm" if math.isfinite(best) else "-"))
 
         started = time.monotonic()
         sent = client.send_goal_async(goal, feedback_callback=feedback)
