@@ -221,8 +221,8 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     one succeeds: the plan is the first success in that order, or the best executed plan of all.
     Each start is a lottery ticket of a non-convex problem: about half the pushes succeed with the
     first and pay for one. With stages.parallel the next start runs beside the earliest unfinished
-    one, on a thread of its own, and is abandoned when an earlier start succeeds: the threads make
-    the solve faster but never change which plan is returned."""
+    one, on a thread of its own, and is abandoned when an earlier start succeeds: the threads change
+    how long a solve takes (README: shorter misses, longer easy pushes), never which plan is returned."""
     clock = _Clock(settings, iteration_callback)
     stages = settings.stages
     labelled = len(stages.starts) > 1
