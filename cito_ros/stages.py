@@ -233,14 +233,18 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     abandoned = [threading.Event() for _ in jobs]
     results: dict[int, tuple] = {}
 
+    def settles(result) -> bool:
+        """Whether a start's result ends the search: a success, or an interruption."""
+        rank, outcome = result
+        return outcome.status.interrupted or Executed.succeeds(rank)
+
     def decided() -> bool:
-        """Whether the finished starts settle the plan: the first unfinished start comes after a success
-        (or an interruption), or none is left."""
+        """Whether the finished starts settle the plan: the first unfinished start comes after a start
+        that settles it, or none is left."""
         for index in range(len(jobs)):
             if index not in results:
                 return False
-            rank, outcome = results[index]
-            if outcome.status.interrupted or Executed.succeeds(rank):
+            if settles(results[index]):
                 return True
         return True
 
@@ -272,8 +276,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     ordered = []
     for index in sorted(results):
         ordered.append(results[index])
-        rank, outcome = results[index]
-        if outcome.status.interrupted or Executed.succeeds(rank):
+        if settles(results[index]):
             break
     _, outcome = min(ordered, key=lambda result: result[0])
     log = tuple(entry for _, result in ordered for entry in result.log)
