@@ -68,8 +68,7 @@ class IlqrSolver:
                     break
                 # every step length tried, the best kept: contact makes the cost along the step anything
                 # but the model's parabola, and a short step can win where a long one fails
-                trials = [_forward(problem, expansion, z.reshape(N, w), k, K, alpha, lower, upper)
-                          for alpha in self.step_lengths]
+                trials = _forward(problem, expansion, z.reshape(N, w), k, K, self.step_lengths, lower, upper)
                 best = min(range(len(trials)), key=lambda i: trials[i].cost if trials[i].finite else math.inf)
                 trial, alpha = trials[best], self.step_lengths[best]
                 if trial.finite and trial.cost < point.cost and \
@@ -144,17 +143,21 @@ def _backward(expansion, decisions: np.ndarray, lower: np.ndarray, upper: np.nda
     return k, K, expected
 
 
-def _forward(problem, expansion, decisions: np.ndarray, k: np.ndarray, K: np.ndarray, alpha: float,
-             lower: np.ndarray, upper: np.ndarray):
-    """The evaluation of the decisions a closed-loop rollout chooses knot by knot, from the knot's start
-    state: c_l = c_l + alpha k_l + K_l (x_l - x_l). Open loop, they reproduce the same motion."""
+def _forward(problem, expansion, decisions: np.ndarray, k: np.ndarray, K: np.ndarray, step_lengths: np.ndarray,
+             lower: np.ndarray, upper: np.ndarray) -> list:
+    """The evaluations of the decisions closed-loop rollouts choose knot by knot, from each knot's start
+    state, one per step length alpha: c_l = c_l + alpha k_l + K_l (x_l - x_l). Open loop, they
+    reproduce the same motions."""
     P = problem.decision_map()
-    trial = decisions.copy()
+    trials = [decisions.copy() for _ in step_lengths]
 
-    def policy(l: int, start: np.ndarray) -> np.ndarray:
-        deviation = problem.state_difference(start, expansion.knot_states[l])[0]
-        trial[l] = np.clip(decisions[l] + alpha * k[l] + K[l] @ deviation, lower[l], upper[l])
-        return P @ trial[l]
+    def policy(trial: np.ndarray, alpha: float):
+        def choose(l: int, start: np.ndarray) -> np.ndarray:
+            deviation = problem.state_difference(start, expansion.knot_states[l])[0]
+            trial[l] = np.clip(decisions[l] + alpha * k[l] + K[l] @ deviation, lower[l], upper[l])
+            return P @ trial[l]
+        return choose
 
-    states, sensordata, warnings = problem.simulator.closed_loop_rollout(problem.initial_state, policy)
-    return problem.remember(trial.reshape(-1), states, sensordata, warnings)
+    rollouts = problem.simulator.closed_loop_rollouts(
+        problem.initial_state, [policy(trial, alpha) for trial, alpha in zip(trials, step_lengths)])
+    return [problem.remember(trial.reshape(-1), *rollout) for trial, rollout in zip(trials, rollouts)]

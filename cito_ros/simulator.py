@@ -9,8 +9,9 @@ the same dynamics.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -83,6 +84,7 @@ class Simulator:
         self._serial = mj_rollout.Rollout(nthread=0)
         self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
         self._data = [mujoco.MjData(self.model) for _ in range(nthread)]
+        self._lanes = [self._serial] + [mj_rollout.Rollout(nthread=0) for _ in range(nthread - 1)]
         self.clock = PhaseClock()  # the time of the rollouts and linearizations on this simulator
 
     # ------------------------------------------------------------------ inputs
@@ -170,26 +172,41 @@ class Simulator:
                        initial_warmstart=np.zeros((batch, self.model.nv)), state=states, sensordata=sensordata)
         return states, sensordata, _warnings(datas)
 
-    def closed_loop_rollout(self, initial_state: np.ndarray, policy: Callable[[int, np.ndarray], np.ndarray]
-                            ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
-        """One rollout whose knot controls are chosen knot by knot: policy(l, x_l) -> (nu,) the controls
-        of knot l from its start state x_l. Each knot is stepped natively, the constraint solver's
-        warmstart carried across knots, so the open-loop rollout of the chosen controls is the same
-        motion bit for bit. Returns states (n_steps, nstate), sensordata and the MuJoCo warnings."""
+    def closed_loop_rollouts(self, initial_state: np.ndarray,
+                             policies: Sequence[Callable[[int, np.ndarray], np.ndarray]]
+                             ) -> list[tuple[np.ndarray, np.ndarray, dict[str, int]]]:
+        """Rollouts whose knot controls are chosen knot by knot, one per policy, side by side on up to
+        nthread threads: policy(l, x_l) -> (nu,) the controls of knot l from its start state x_l. Each
+        knot is stepped natively, the constraint solver's warmstart carried across knots, so the open-loop
+        rollout of the chosen controls is the same motion bit for bit, whichever thread ran it. Returns,
+        per policy, the states (n_steps, nstate), the sensordata and the MuJoCo warnings."""
         with self.clock.measure("rollout"):
-            data, S, nu = self._data[0], self.steps_per_knot, self.model.nu
-            _clear_warnings(data)
-            states = np.empty((self.n_steps, self.nstate))
-            sensordata = np.empty((self.n_steps, self.model.nsensordata))
-            warmstart, controls = np.zeros((1, self.model.nv)), np.empty((1, S, nu))
-            for l in range(self.n_knots):
-                start = initial_state if l == 0 else states[l * S - 1]
-                controls[0] = policy(l, start)
-                self._serial.rollout([self.model], [data], start[None], controls, skip_checks=True, nstep=S,
-                                     initial_warmstart=warmstart, state=states[l * S:(l + 1) * S][None],
-                                     sensordata=sensordata[l * S:(l + 1) * S][None])
-                warmstart[0] = data.qacc_warmstart
-            return states, sensordata, _warnings([data])
+            workers = min(self.nthread, len(policies))
+            if workers == 1:
+                return [self._closed_loop(0, initial_state, policy) for policy in policies]
+            # the native stepping releases the GIL: the trials' rollouts run on both cores
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                lanes = [pool.submit(lambda lane: [self._closed_loop(lane, initial_state, policies[i])
+                                                   for i in range(lane, len(policies), workers)], lane)
+                         for lane in range(workers)]
+                done = [lane.result() for lane in lanes]
+            return [done[i % workers][i // workers] for i in range(len(policies))]
+
+    def _closed_loop(self, lane: int, initial_state: np.ndarray, policy: Callable[[int, np.ndarray], np.ndarray]
+                     ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+        data, runner, S, nu = self._data[lane], self._lanes[lane], self.steps_per_knot, self.model.nu
+        _clear_warnings(data)
+        states = np.empty((self.n_steps, self.nstate))
+        sensordata = np.empty((self.n_steps, self.model.nsensordata))
+        warmstart, controls = np.zeros((1, self.model.nv)), np.empty((1, S, nu))
+        for l in range(self.n_knots):
+            start = initial_state if l == 0 else states[l * S - 1]
+            controls[0] = policy(l, start)
+            runner.rollout([self.model], [data], start[None], controls, skip_checks=True, nstep=S,
+                           initial_warmstart=warmstart, state=states[l * S:(l + 1) * S][None],
+                           sensordata=sensordata[l * S:(l + 1) * S][None])
+            warmstart[0] = data.qacc_warmstart
+        return states, sensordata, _warnings([data])
 
     # ------------------------------------------------------------------ outputs
 

@@ -87,25 +87,35 @@ def test_one_and_two_threads_give_identical_results(scenes, start_states):
     assert np.array_equal(single.q[1:], states_2[4][:, 1 + scene.arm_qpos_adr])
 
 
-def test_a_closed_loop_rollout_is_replayed_bit_for_bit_open_loop(simulators, start_states):
+def test_closed_loop_rollouts_side_by_side_are_replayed_bit_for_bit_open_loop(simulators, start_states):
     # iLQR's forward pass chooses each knot's controls from the state it reaches; the plan it keeps is
-    # those controls, executed open loop, so both rollouts must be the same motion to the last bit
+    # those controls, executed open loop, so both rollouts must be the same motion to the last bit,
+    # whichever of the threads ran it (three trials on two threads: one thread runs two in a row)
     simulator = simulators["vscm"]
     scene = simulator.scene
     feedforward = simulator.knot_controls(approach_torques(simulator, seed=5), np.full(simulator.n_knots, 80.0))
-    chosen = np.empty_like(feedforward)
+    gains = [2.0, 4.0, 0.5]
+    chosen = [np.empty_like(feedforward) for _ in gains]
 
-    def policy(knot, state):
-        chosen[knot] = feedforward[knot]
-        chosen[knot, scene.motor_ids] -= 2.0 * scene.arm_qvel(state)  # damping: the controls depend on the state reached
-        return chosen[knot]
+    def policy(trial):
+        def choose(knot, state):
+            chosen[trial][knot] = feedforward[knot]
+            # damping: the controls depend on the state reached
+            chosen[trial][knot, scene.motor_ids] -= gains[trial] * scene.arm_qvel(state)
+            return chosen[trial][knot]
+        return choose
 
-    states, sensordata, warnings = simulator.closed_loop_rollout(start_states[6], policy)
+    assert simulator.nthread == 2
+    rollouts = simulator.closed_loop_rollouts(start_states[6], [policy(i) for i in range(len(gains))])
     open_states, open_sensordata, open_warnings = simulator.rollout_batch(
-        start_states[6][None], simulator.step_controls(chosen)[None])
-    assert np.array_equal(states, open_states[0]) and np.array_equal(sensordata, open_sensordata[0])
-    assert warnings == open_warnings == {}
-    assert np.abs(chosen - feedforward).max() > 0.1  # the feedback acted
+        np.repeat(start_states[6][None], len(gains), axis=0),
+        np.stack([simulator.step_controls(c) for c in chosen]))
+    for i, (states, sensordata, warnings) in enumerate(rollouts):
+        assert np.array_equal(states, open_states[i]) and np.array_equal(sensordata, open_sensordata[i])
+        assert warnings == {}
+        assert np.abs(chosen[i] - feedforward).max() > 0.1  # the feedback acted
+    assert open_warnings == {}
+    assert not np.array_equal(rollouts[0][0], rollouts[1][0])  # different policies, different motions
 
 
 def test_models_with_different_parameters_coexist(settings, start_states):
