@@ -7,9 +7,10 @@ cost (cito_ros.problem.PushProblem.knot_expansion: the residuals' exact Jacobian
 per-step linearizations) and solves, knot by knot from the end, a box-constrained quadratic
 program (mju_boxQP) for a feedforward change k_l and a feedback gain K_l on the deviation of the
 knot's start state. The forward pass then rolls out c_l = c_l + a k_l + K_l (x_l - x_l) for several
-step lengths a and keeps the best: the feedback keeps each trial near the trajectory the
-expansion was taken about, where contact events make open-loop steps leave the model's region of
-validity after a few hundredths of a newton metre (the failure of a plain Gauss-Newton step here).
+step lengths a, side by side on the simulator's threads, and keeps the best: the feedback keeps
+each trial near the trajectory the expansion was taken about, where contact events make open-loop
+steps leave the model's region of validity after a few hundredths of a newton metre (the failure
+of a plain Gauss-Newton step here).
 The controls a trial applies are its new decisions, so its open-loop rollout is the same motion.
 
 Regularization: mu (Levenberg-Marquardt on the scaled decisions) falls after an iteration whose
