@@ -7,7 +7,8 @@ cost (cito_ros.problem.PushProblem.knot_expansion: the residuals' exact Jacobian
 per-step linearizations) and solves, knot by knot from the end, a box-constrained quadratic
 program (mju_boxQP) for a feedforward change k_l and a feedback gain K_l on the deviation of the
 knot's start state. The forward pass then rolls out c_l = c_l + a k_l + K_l (x_l - x_l) for several
-step lengths a, side by side on the simulator's threads, and keeps the best: the feedback keeps
+step lengths a, natively and side by side on the simulator's threads (Simulator.feedback_rollouts),
+and keeps the best: the feedback keeps
 each trial near the trajectory the expansion was taken about, where contact events make open-loop
 steps leave the model's region of validity after a few hundredths of a newton metre (the failure
 of a plain Gauss-Newton step here).
@@ -150,15 +151,9 @@ def _forward(problem, expansion, decisions: np.ndarray, k: np.ndarray, K: np.nda
     state, one per step length alpha: c_l = c_l + alpha k_l + K_l (x_l - x_l). Open loop, they
     reproduce the same motions."""
     P = problem.decision_map()
-    trials = [decisions.copy() for _ in step_lengths]
-
-    def policy(trial: np.ndarray, alpha: float):
-        def choose(l: int, start: np.ndarray) -> np.ndarray:
-            deviation = problem.state_difference(start, expansion.knot_states[l])[0]
-            trial[l] = np.clip(decisions[l] + alpha * k[l] + K[l] @ deviation, lower[l], upper[l])
-            return P @ trial[l]
-        return choose
-
-    rollouts = problem.simulator.closed_loop_rollouts(
-        problem.initial_state, [policy(trial, alpha) for trial, alpha in zip(trials, step_lengths)])
-    return [problem.remember(trial.reshape(-1), *rollout) for trial, rollout in zip(trials, rollouts)]
+    # each decision drives one actuator (P's columns are unit vectors or zero)
+    actuators = np.where(P.any(axis=0), P.argmax(axis=0), -1)
+    rollouts = problem.simulator.feedback_rollouts(problem.initial_state, expansion.knot_states[:-1], decisions, k, K,
+                                                   step_lengths, lower, upper, actuators)
+    return [problem.remember(trial.reshape(-1), states, sensordata, warnings)
+            for trial, states, sensordata, warnings in rollouts]

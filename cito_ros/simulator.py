@@ -9,14 +9,13 @@ the same dynamics.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
+from cito_ros import _native
 from cito_ros.timing import PhaseClock
 from cito_ros.typed_config import require_finite
 from cito_ros.scene import ARM_JOINTS, Scene
@@ -84,7 +83,6 @@ class Simulator:
         self._serial = mj_rollout.Rollout(nthread=0)
         self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
         self._data = [mujoco.MjData(self.model) for _ in range(nthread)]
-        self._lanes = [self._serial] + [mj_rollout.Rollout(nthread=0) for _ in range(nthread - 1)]
         self.clock = PhaseClock()  # the time of the rollouts and linearizations on this simulator
 
     # ------------------------------------------------------------------ inputs
@@ -172,41 +170,37 @@ class Simulator:
                        initial_warmstart=np.zeros((batch, self.model.nv)), state=states, sensordata=sensordata)
         return states, sensordata, _warnings(datas)
 
-    def closed_loop_rollouts(self, initial_state: np.ndarray,
-                             policies: Sequence[Callable[[int, np.ndarray], np.ndarray]]
-                             ) -> list[tuple[np.ndarray, np.ndarray, dict[str, int]]]:
-        """Rollouts whose knot controls are chosen knot by knot, one per policy, side by side on up to
-        nthread threads: policy(l, x_l) -> (nu,) the controls of knot l from its start state x_l. Each
-        knot is stepped natively, the constraint solver's warmstart carried across knots, so the open-loop
-        rollout of the chosen controls is the same motion bit for bit, whichever thread ran it. Returns,
-        per policy, the states (n_steps, nstate), the sensordata and the MuJoCo warnings."""
+    def feedback_rollouts(self, initial_state: np.ndarray, knot_states: np.ndarray, decisions: np.ndarray,
+                          k: np.ndarray, K: np.ndarray, step_lengths: np.ndarray, lower: np.ndarray,
+                          upper: np.ndarray, actuators: np.ndarray
+                          ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, int]]]:
+        """iLQR's forward pass, natively and side by side on up to nthread threads: one rollout per step
+        length alpha, whose knot decisions (N, w) are chosen knot by knot from the state x_l reached:
+        c_l = clip(decisions_l + alpha k_l + K_l (x_l - knot_states_l), lower_l, upper_l), decision i
+        driving actuator actuators[i] (-1: none; other controls zero). The open-loop rollout of the
+        chosen decisions is the same motion bit for bit (the constraint solver's warmstart carried across
+        knots as rollout_batch carries it). Returns, per step length, the decisions chosen (N, w), the
+        states (n_steps, nstate), the sensordata and the MuJoCo warnings."""
+        N, w = decisions.shape
+        nx = 2 * self.model.nv
+        if knot_states.shape != (N, self.nstate) or k.shape != (N, w) or K.shape != (N, w, nx) or \
+                lower.shape != (N, w) or upper.shape != (N, w) or actuators.shape != (w,) or N != self.n_knots:
+            raise ValueError(f"feedback rollouts need {self.n_knots} knots: knot_states (N, {self.nstate}), "
+                             f"decisions, k, lower, upper (N, w), K (N, w, {nx}) and actuators (w,)")
+        step_lengths = np.ascontiguousarray(step_lengths, dtype=float)
+        n = len(step_lengths)
+        trials = np.empty((n, N, w))
+        states = np.empty((n, self.n_steps, self.nstate))
+        sensordata = np.empty((n, self.n_steps, self.model.nsensordata))
+        warnings = np.zeros((n, mujoco.mjtWarning.mjNWARNING.value), dtype=np.int32)
+        contiguous = [np.ascontiguousarray(a, dtype=float) for a in (initial_state, knot_states, decisions, k, K)]
         with self.clock.measure("rollout"):
-            workers = min(self.nthread, len(policies))
-            if workers == 1:
-                return [self._closed_loop(0, initial_state, policy) for policy in policies]
-            # the native stepping releases the GIL: the trials' rollouts run on both cores
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                lanes = [pool.submit(lambda lane: [self._closed_loop(lane, initial_state, policies[i])
-                                                   for i in range(lane, len(policies), workers)], lane)
-                         for lane in range(workers)]
-                done = [lane.result() for lane in lanes]
-            return [done[i % workers][i // workers] for i in range(len(policies))]
-
-    def _closed_loop(self, lane: int, initial_state: np.ndarray, policy: Callable[[int, np.ndarray], np.ndarray]
-                     ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
-        data, runner, S, nu = self._data[lane], self._lanes[lane], self.steps_per_knot, self.model.nu
-        _clear_warnings(data)
-        states = np.empty((self.n_steps, self.nstate))
-        sensordata = np.empty((self.n_steps, self.model.nsensordata))
-        warmstart, controls = np.zeros((1, self.model.nv)), np.empty((1, S, nu))
-        for l in range(self.n_knots):
-            start = initial_state if l == 0 else states[l * S - 1]
-            controls[0] = policy(l, start)
-            runner.rollout([self.model], [data], start[None], controls, skip_checks=True, nstep=S,
-                           initial_warmstart=warmstart, state=states[l * S:(l + 1) * S][None],
-                           sensordata=sensordata[l * S:(l + 1) * S][None])
-            warmstart[0] = data.qacc_warmstart
-        return states, sensordata, _warnings([data])
+            _native.feedback_rollouts(self.model._address, tuple(d._address for d in self._data), n, N,
+                                      self.steps_per_knot, w, *contiguous, step_lengths,
+                                      np.ascontiguousarray(lower, dtype=float), np.ascontiguousarray(upper, dtype=float),
+                                      np.ascontiguousarray(actuators, dtype=np.int32), trials, states, sensordata,
+                                      warnings)
+        return [(trials[i], states[i], sensordata[i], _warning_counts(warnings[i])) for i in range(n)]
 
     # ------------------------------------------------------------------ outputs
 
@@ -247,10 +241,9 @@ def _clear_warnings(data: mujoco.MjData) -> None:
 
 
 def _warnings(datas: list[mujoco.MjData]) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for data in datas:
-        for index, warning in enumerate(data.warning):
-            if warning.number:
-                name = mujoco.mjtWarning(index).name
-                counts[name] = counts.get(name, 0) + int(warning.number)
-    return counts
+    return _warning_counts(np.sum([[w.number for w in data.warning] for data in datas], axis=0))
+
+
+def _warning_counts(numbers: np.ndarray) -> dict[str, int]:
+    """{warning name: count} of the warnings raised (numbers indexed by mjtWarning)."""
+    return {mujoco.mjtWarning(index).name: int(number) for index, number in enumerate(numbers) if number}

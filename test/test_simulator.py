@@ -87,35 +87,60 @@ def test_one_and_two_threads_give_identical_results(scenes, start_states):
     assert np.array_equal(single.q[1:], states_2[4][:, 1 + scene.arm_qpos_adr])
 
 
-def test_closed_loop_rollouts_side_by_side_are_replayed_bit_for_bit_open_loop(simulators, start_states):
-    # iLQR's forward pass chooses each knot's controls from the state it reaches; the plan it keeps is
-    # those controls, executed open loop, so both rollouts must be the same motion to the last bit,
+def test_feedback_rollouts_side_by_side_are_replayed_bit_for_bit_open_loop(simulators, start_states):
+    # iLQR's forward pass chooses each knot's decisions from the state it reaches; the plan it keeps is
+    # those decisions, executed open loop, so both rollouts must be the same motion to the last bit,
     # whichever of the threads ran it (three trials on two threads: one thread runs two in a row)
     simulator = simulators["vscm"]
-    scene = simulator.scene
-    feedforward = simulator.knot_controls(approach_torques(simulator, seed=5), np.full(simulator.n_knots, 80.0))
-    gains = [2.0, 4.0, 0.5]
-    chosen = [np.empty_like(feedforward) for _ in gains]
-
-    def policy(trial):
-        def choose(knot, state):
-            chosen[trial][knot] = feedforward[knot]
-            # damping: the controls depend on the state reached
-            chosen[trial][knot, scene.motor_ids] -= gains[trial] * scene.arm_qvel(state)
-            return chosen[trial][knot]
-        return choose
+    scene, N, S = simulator.scene, simulator.n_knots, simulator.steps_per_knot
+    nx = 2 * simulator.model.nv
+    torques = approach_torques(simulator, seed=5)
+    decisions = np.hstack([torques, np.full((N, 1), 80.0)])
+    actuators = np.array([*scene.motor_ids, scene.contact_actuator_id], dtype=np.int32)
+    motion, _, _ = simulator.rollout_batch(start_states[6][None], simulator.step_controls(
+        simulator.knot_controls(torques, np.full(N, 80.0)))[None])
+    knot_states = np.vstack([start_states[6][None], motion[0][S - 1:-1:S]])
+    # a direction of change, and damping gains: the decisions depend on the velocities reached
+    k = np.hstack([np.random.default_rng(5).normal(0.0, 2.0, (N, 7)), np.full((N, 1), -30.0)])
+    K = np.zeros((N, 8, nx))
+    K[:, np.arange(7), simulator.model.nv + np.asarray(scene.arm_dof_adr)] = -3.0
+    lower = np.hstack([-np.tile(scene.torque_limit, (N, 1)), np.zeros((N, 1))])
+    upper = np.hstack([np.tile(scene.torque_limit, (N, 1)), np.full((N, 1), 200.0)])
+    step_lengths = np.array([1.0, 0.5, 0.0])
 
     assert simulator.nthread == 2
-    rollouts = simulator.closed_loop_rollouts(start_states[6], [policy(i) for i in range(len(gains))])
+    rollouts = simulator.feedback_rollouts(start_states[6], knot_states, decisions, k, K, step_lengths, lower,
+                                           upper, actuators)
+    chosen = [trial for trial, _, _, _ in rollouts]
     open_states, open_sensordata, open_warnings = simulator.rollout_batch(
-        np.repeat(start_states[6][None], len(gains), axis=0),
-        np.stack([simulator.step_controls(c) for c in chosen]))
-    for i, (states, sensordata, warnings) in enumerate(rollouts):
+        np.repeat(start_states[6][None], len(step_lengths), axis=0),
+        np.stack([simulator.step_controls(simulator.knot_controls(c[:, :7], c[:, 7])) for c in chosen]))
+    for i, (trial, states, sensordata, warnings) in enumerate(rollouts):
         assert np.array_equal(states, open_states[i]) and np.array_equal(sensordata, open_sensordata[i])
         assert warnings == {}
-        assert np.abs(chosen[i] - feedforward).max() > 0.1  # the feedback acted
+        assert np.all(trial >= lower) and np.all(trial <= upper)
     assert open_warnings == {}
-    assert not np.array_equal(rollouts[0][0], rollouts[1][0])  # different policies, different motions
+    # the law, knot by knot from the states reached (first knot: no deviation yet)
+    qvel = slice(scene.state_qvel_adr, scene.state_qvel_adr + simulator.model.nv)
+    for i, alpha in enumerate(step_lengths):
+        reached = np.vstack([start_states[6][None], rollouts[i][1][S - 1:-1:S]])
+        deviation = reached[:, qvel] - knot_states[:, qvel]
+        expected = decisions + alpha * k + np.einsum("lij,lj->li", K[:, :, simulator.model.nv:], deviation)
+        assert np.allclose(rollouts[i][0], np.clip(expected, lower, upper), rtol=0, atol=1e-9)
+    # with no step the trial retraces the motion the knot states came from: no deviation ever arises
+    assert np.array_equal(rollouts[2][0], decisions) and np.array_equal(rollouts[2][1], motion[0])
+    assert np.abs(rollouts[0][0] - decisions).max() > 0.1  # the step and the feedback acted
+    assert not np.array_equal(rollouts[0][1], rollouts[1][1])  # different step lengths, different motions
+
+
+def test_feedback_rollouts_refuse_an_actuator_the_model_does_not_have(simulators, start_states):
+    simulator = simulators["vscm"]
+    N, nx = simulator.n_knots, 2 * simulator.model.nv
+    zeros = np.zeros((N, 8))
+    with pytest.raises(ValueError, match="actuators"):
+        simulator.feedback_rollouts(start_states[6], np.tile(start_states[6], (N, 1)), zeros, zeros,
+                                    np.zeros((N, 8, nx)), np.array([1.0]), zeros - 1, zeros + 1,
+                                    np.array([0, 1, 2, 3, 4, 5, 6, simulator.model.nu], dtype=np.int32))
 
 
 def test_models_with_different_parameters_coexist(settings, start_states):

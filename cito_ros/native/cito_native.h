@@ -2,6 +2,8 @@
 #ifndef CITO_NATIVE_H_
 #define CITO_NATIVE_H_
 
+#include <stddef.h>
+
 #include <mujoco/mujoco.h>
 
 // Register cito.compensated_motor and cito.virtual_contact (call once per process).
@@ -28,5 +30,34 @@ enum {
 int cito_linearize(const mjModel* m, mjData** datas, int nthread, int T, const mjtNum* states,
                    const mjtNum* controls, mjtNum eps, mjtNum* A, mjtNum* B, mjtNum* C, mjtNum* D,
                    int* flags, char* error, int error_size);
+
+// The forward pass of iLQR: n_trials rollouts of n_knots knots of steps_per_knot steps each from
+// initial_state (nstate, mjSTATE_FULLPHYSICS), whose decisions (width per knot) are chosen knot by
+// knot from the state x_l the trial reached at the knot's start:
+//   c_l = clip(decisions_l + alpha k_l + K_l (x_l - xref_l), lower_l, upper_l),  alpha = step_lengths[trial]
+// (x_l - xref_l in the tangent space, nx = 2 nv; xref_l = knot_states[l]). Decision i drives
+// actuator actuators[i] (-1: none); the other controls are zero. Row-major arrays:
+// knot_states N x nstate, decisions/k/lower/upper N x width, K N x width x nx.
+typedef struct {
+  int n_trials, n_knots, steps_per_knot, width;
+  const mjtNum *initial_state, *knot_states, *decisions, *k, *K, *step_lengths, *lower, *upper;
+  const int* actuators;
+  mjtNum* trials;      // out: n_trials x N x width, the decisions each trial chose
+  mjtNum* states;      // out: n_trials x (N steps_per_knot) x nstate, the state after each step
+  mjtNum* sensordata;  // out: n_trials x (N steps_per_knot) x nsensordata, the sensors before each step
+  int* warnings;       // out: n_trials x mjNWARNING, the MuJoCo warnings raised
+} CitoFeedback;
+
+// Each trial is stepped as mujoco.rollout steps an open-loop rollout (inputs reset, zero initial
+// warmstart, warnings cleared at the start; after a warning the remaining steps repeat the state
+// reached), so the open-loop rollout of the chosen decisions reproduces it bit for bit. The trials
+// run side by side on nthread threads, each using one of the caller's mjData (datas[nthread],
+// overwritten). Returns 0, or -1 (error message written to error).
+int cito_feedback_rollouts(const mjModel* m, mjData** datas, int nthread, const CitoFeedback* feedback,
+                           char* error, int error_size);
+
+// Runs run(job) for the njob jobs (an array of job_size-byte items), each on a thread of its own,
+// the first on the calling thread. Returns 0, or -1 when out of memory (nothing ran).
+int cito_run_threads(void* (*run)(void*), void* jobs, size_t job_size, int njob);
 
 #endif  // CITO_NATIVE_H_

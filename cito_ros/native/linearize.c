@@ -1,7 +1,6 @@
 // Finite-difference linearization of simulation steps (see cito_native.h).
 #include "cito_native.h"
 
-#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -252,35 +251,16 @@ int cito_linearize(const mjModel* m, mjData** datas, int nthread, int T, const m
   memset(flags, 0, sizeof(int) * (size_t)T * CITO_NFLAG);
 
   Job* jobs = (Job*)calloc(nthread, sizeof(Job));
-  pthread_t* threads = (pthread_t*)calloc(nthread, sizeof(pthread_t));
-  int* started = (int*)calloc(nthread, sizeof(int));
-  if (!jobs || !threads || !started) {
-    free(jobs);
-    free(threads);
-    free(started);
+  if (!jobs) {
     snprintf(error, error_size, "out of memory");
     return -1;
   }
   for (int i = 0; i < nthread; i++) {
     jobs[i] = (Job){m, datas[i], T, states, controls, eps, nthread, i, A, B, C, D, flags, 0};
   }
-  // each job on its own thread; a job whose thread cannot start runs on this one
-  for (int i = 1; i < nthread; i++) {
-    started[i] = pthread_create(&threads[i], NULL, run_job, &jobs[i]) == 0;
-  }
-  run_job(&jobs[0]);
-  for (int i = 1; i < nthread; i++) {
-    if (started[i]) {
-      pthread_join(threads[i], NULL);
-    } else {
-      run_job(&jobs[i]);
-    }
-  }
-  int failed = 0;
+  int failed = cito_run_threads(run_job, jobs, sizeof(Job), nthread) != 0;
   for (int i = 0; i < nthread; i++) failed |= jobs[i].failed;
-  free(started);
   free(jobs);
-  free(threads);
   if (failed) {
     snprintf(error, error_size, "out of memory while linearizing");
     return -1;
