@@ -553,20 +553,18 @@ class PushProblem:
         P = self.decision_map()
         X = np.repeat(np.eye(nx)[None], N, axis=0)   # d x_t / d x_l, all knots at once
         U = np.zeros((N, nx, w))                       # d x_t / d c_l
-        lx, lc = np.zeros((N, nx)), np.zeros((N, w))
-        lxx, lcc, lcx = np.zeros((N, nx, nx)), np.zeros((N, w, w)), np.zeros((N, w, nx))
+        Jx, Jc, r = [], [], []  # each knot's running residuals and their Jacobians, step by step
         for j in range(S):
             steps = np.arange(N) * S + j
-            Jx = G[steps] @ (C[steps] @ X)
-            Jc = G[steps] @ (C[steps] @ U + D[steps] @ P)
-            r = running[steps]
-            lx += 2 * np.einsum("nkx,nk->nx", Jx, r)
-            lc += 2 * np.einsum("nkc,nk->nc", Jc, r)
-            lxx += 2 * np.einsum("nkx,nky->nxy", Jx, Jx)
-            lcc += 2 * np.einsum("nkc,nkd->ncd", Jc, Jc)
-            lcx += 2 * np.einsum("nkc,nkx->ncx", Jc, Jx)
+            Jx.append(G[steps] @ (C[steps] @ X))
+            Jc.append(G[steps] @ (C[steps] @ U + D[steps] @ P))
+            r.append(running[steps][..., None])
             X = linearization.A[steps] @ X
             U = linearization.A[steps] @ U + linearization.B[steps] @ P
+        # stacked over the knot's steps, the sums over steps are batched products
+        Jx, Jc, r = np.concatenate(Jx, axis=1), np.concatenate(Jc, axis=1), np.concatenate(r, axis=1)
+        lx, lc = 2 * (Jx.mT @ r)[..., 0], 2 * (Jc.mT @ r)[..., 0]
+        lxx, lcc, lcx = 2 * (Jx.mT @ Jx), 2 * (Jc.mT @ Jc), 2 * (Jc.mT @ Jx)
         if self.variables:
             _, variables = self.split(z)
             values, derivative = self.contact_model.variable_residuals(variables, self.weights)

@@ -136,6 +136,28 @@ def test_residual_jacobian_matches_differences_and_the_gradient(settings, name, 
         np.testing.assert_allclose(jacobian @ direction, fd, rtol=2e-3, atol=2e-3 * np.abs(fd).max())
 
 
+@pytest.mark.parametrize("virtual_force", [True, False])
+def test_knot_expansion_is_the_gauss_newton_of_the_residual_jacobian(settings, virtual_force):
+    # iLQR's backward pass sees the cost only through the knot-wise expansion; composed back over the
+    # horizon (controls held, the cost-to-go's state derivatives carried knot to knot) it must give
+    # the gradient 2 J'r and the diagonal knot blocks of the Gauss-Newton 2 J'J of the residual
+    # Jacobian (checked against differences above)
+    problem = every_term(settings, "vscm", virtual_force)
+    z = interior_point(problem, seed=11, spread=0.3)
+    expansion = problem.knot_expansion(z)
+    jacobian, residuals = problem.residual_jacobian(z), problem.residuals(z)
+    gradient, hessian = 2 * jacobian.T @ residuals, 2 * jacobian.T @ jacobian
+    w = problem.width
+    vx, vxx = expansion.vx, expansion.vxx
+    for l in range(problem.n_knots - 1, -1, -1):
+        fx, fc, knot = expansion.fx[l], expansion.fc[l], slice(l * w, (l + 1) * w)
+        np.testing.assert_allclose(expansion.lc[l] + fc.T @ vx, gradient[knot], rtol=1e-8,
+                                   atol=1e-10 * np.abs(gradient).max())
+        np.testing.assert_allclose(expansion.lcc[l] + fc.T @ vxx @ fc, hessian[knot, knot], rtol=1e-8,
+                                   atol=1e-10 * np.abs(hessian).max())
+        vx, vxx = expansion.lx[l] + fx.T @ vx, expansion.lxx[l] + fx.T @ vxx @ fx
+
+
 def test_the_adjoint_pass_is_the_derivative_of_a_linear_system():
     """On x_{t+1} = A_t x_t + B_t u_t, s_t = C_t x_t + D_t u_t and y = sum_t w_t . s_t + g . x_T, with
     u held per knot, the pure adjoint pass gives dy/du_knot exactly (checked against the explicit sum)."""
