@@ -150,10 +150,7 @@ def _forward(problem, expansion, decisions: np.ndarray, k: np.ndarray, K: np.nda
     """The evaluations of the decisions closed-loop rollouts choose knot by knot, from each knot's start
     state, one per step length alpha: c_l = c_l + alpha k_l + K_l (x_l - x_l). Open loop, they
     reproduce the same motions."""
-    P = problem.decision_map()
-    # each decision drives one actuator (P's columns are unit vectors or zero)
-    actuators = np.where(P.any(axis=0), P.argmax(axis=0), -1)
     rollouts = problem.simulator.feedback_rollouts(problem.initial_state, expansion.knot_states[:-1], decisions, k, K,
-                                                   step_lengths, lower, upper, actuators)
+                                                   step_lengths, lower, upper, problem.decision_actuators())
     return [problem.remember(trial.reshape(-1), states, sensordata, warnings)
             for trial, states, sensordata, warnings in rollouts]

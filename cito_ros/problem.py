@@ -531,13 +531,21 @@ class PushProblem:
 
     # ------------------------------------------------------------------ knot-wise model (iLQR)
 
+    def decision_actuators(self) -> np.ndarray:
+        """(width,) int32: the actuator each decision of a knot drives, -1 for none (a contact variable)."""
+        actuators = np.full(self.width, -1, dtype=np.int32)
+        actuators[:self.n_joints] = self.scene.motor_ids
+        index = self._control_column()
+        if index is not None:
+            actuators[self.n_joints + index] = self.scene.contact_actuator_id
+        return actuators
+
     def decision_map(self) -> np.ndarray:
         """(nu, width): the actuator controls of one knot as a linear map of its decisions."""
         P = np.zeros((self.scene.model.nu, self.width))
-        P[self.scene.motor_ids, np.arange(self.n_joints)] = 1.0
-        index = self._control_column()
-        if index is not None:
-            P[self.scene.contact_actuator_id, self.n_joints + index] = 1.0
+        actuators = self.decision_actuators()
+        driving = np.flatnonzero(actuators >= 0)
+        P[actuators[driving], driving] = 1.0
         return P
 
     def knot_expansion(self, z: np.ndarray) -> KnotExpansion:
@@ -578,14 +586,3 @@ class PushProblem:
         knot_states = np.vstack([self.initial_state[None], evaluation.states[S - 1::S]])
         return KnotExpansion(knot_states, X, U, lx, lc, lxx, lcc, lcx, 2 * JT.T @ terminal, 2 * JT.T @ JT,
                              {**linearization.info(), "restarted_knots": 0})
-
-    def state_difference(self, states: np.ndarray, reference: np.ndarray) -> np.ndarray:
-        """Tangent-space differences states - reference, (..., nx), for mjSTATE_FULLPHYSICS states."""
-        model = self.scene.model
-        start = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_TIME)
-        states, reference = np.atleast_2d(states), np.atleast_2d(reference)
-        out = np.empty((len(states), 2 * model.nv))
-        for i, (a, b) in enumerate(zip(states, np.broadcast_to(reference, states.shape))):
-            mujoco.mj_differentiatePos(model, out[i, :model.nv], 1.0, b[start:start + model.nq], a[start:start + model.nq])
-            out[i, model.nv:] = a[start + model.nq:start + model.nq + model.nv] - b[start + model.nq:start + model.nq + model.nv]
-        return out
