@@ -96,7 +96,7 @@ def test_a_params_file_with_a_bad_value_fails_to_load(tmp_path):
 def test_overrides_give_a_new_validated_copy(settings):
     changed = settings.with_overrides({"solver.max_iter": 7, "stages.starts": [0.4]})
     assert changed.solver.max_iter == 7 and changed.stages.starts == (0.4,)
-    assert settings.solver.max_iter == 100 and settings.stages.starts == (0.3, 0.5, 0.15, 0.7)
+    assert settings.solver.max_iter == 100 and settings.stages.starts == (0.5, 0.3, 0.15, 0.7)
 
 
 def test_the_metric_fields_are_the_plan_metrics_message():

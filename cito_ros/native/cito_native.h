@@ -11,7 +11,8 @@ void cito_register_plugins(void);
 
 // Per-step outputs of cito_linearize beyond the matrices.
 enum {
-  CITO_FLAG_ONE_SIDED = 0,   // position columns taken as backward differences (contact switch ahead)
+  CITO_FLAG_ONE_SIDED = 0,   // position columns taken as backward differences (contact switch ahead), or
+                             // central ones where both sides agree but not with the nominal collision
   CITO_FLAG_UNRESOLVED = 1,  // position columns where both sides switch contacts (central difference)
   CITO_FLAG_WARNINGS = 2,    // MuJoCo warnings raised while evaluating the step
   CITO_NFLAG = 3

@@ -19,15 +19,20 @@ typedef struct {
   int failed;
 } Job;
 
+// A contact set: geom pairs, and per contact its point (3), normal (3) and distance.
+typedef struct {
+  int ncon, capacity, *pairs;
+  mjtNum *points, *normals, *dist;
+} Contacts;
+
 // Scratch of one thread: the nominal inputs and outputs of the step being linearized.
 typedef struct {
   mjtNum *qpos, *qvel, *ctrl, time;               // nominal inputs
   mjtNum *next_qpos, *next_qvel, *sensor;         // nominal outputs
   mjtNum *plus_qpos, *plus_qvel, *plus_sensor;    // a perturbed evaluation
   mjtNum *ahead_qpos, *ahead_qvel, *ahead_sensor; // the forward one, when retrying backward
-  mjtNum *dq, *column;
-  int ncon, *pairs, pairs_capacity;               // nominal contact set
-  mjtNum* points;                                 // nominal contact points (3 per contact)
+  mjtNum *dq, *column, *other;
+  Contacts nominal, ahead;                        // the nominal contact set, the forward perturbation's
   mjtNum jump;                                    // a point moving farther has jumped
   int failed;
 } Scratch;
@@ -50,26 +55,71 @@ static void integrate(const mjModel* m, mjData* d) {
 
 // A perturbation of size eps moves a contact point by about eps times a lever arm (under a metre);
 // a point that moves by more than CITO_POINT_JUMP eps has jumped (a collider choosing other points
-// of a flat face or an edge), which is as discontinuous as a contact appearing.
+// of a flat face or an edge), which is as discontinuous as a contact appearing; so is a normal that
+// turns by more than CITO_POINT_JUMP eps (a curvature radius of 1 cm). A distance moves by
+// at most eps times a lever too: one that moves by more than CITO_DEPTH_JUMP eps is a collider's
+// answer that is not continuous (the convex collider's depth between nearly parallel faces, the
+// arm's cylinder on the cube's top, jumps by 0.1 mm under a 1e-6 perturbation, and a difference across
+// it is 1e3 times the true derivative).
 #define CITO_POINT_JUMP 100
+#define CITO_DEPTH_JUMP 10
 
-static int same_contacts(const mjData* d, const Scratch* s) {
-  if (d->ncon != s->ncon) return 0;
+static int keep_contacts(const mjData* d, Contacts* c) {
+  if (d->ncon > c->capacity) {
+    int* pairs = (int*)realloc(c->pairs, sizeof(int) * 2 * (size_t)d->ncon);
+    if (pairs) c->pairs = pairs;
+    mjtNum* points = pairs ? (mjtNum*)realloc(c->points, sizeof(mjtNum) * 3 * (size_t)d->ncon) : NULL;
+    if (points) c->points = points;
+    mjtNum* normals = points ? (mjtNum*)realloc(c->normals, sizeof(mjtNum) * 3 * (size_t)d->ncon) : NULL;
+    if (normals) c->normals = normals;
+    mjtNum* dist = normals ? (mjtNum*)realloc(c->dist, sizeof(mjtNum) * (size_t)d->ncon) : NULL;
+    if (!dist) return 0;
+    c->dist = dist;
+    c->capacity = d->ncon;
+  }
+  c->ncon = d->ncon;
   for (int i = 0; i < d->ncon; i++) {
-    if (d->contact[i].geom[0] != s->pairs[2 * i] || d->contact[i].geom[1] != s->pairs[2 * i + 1]) return 0;
+    c->pairs[2 * i] = d->contact[i].geom[0];
+    c->pairs[2 * i + 1] = d->contact[i].geom[1];
+    mju_copy3(c->points + 3 * i, d->contact[i].pos);
+    mju_copy3(c->normals + 3 * i, d->contact[i].frame);
+    c->dist[i] = d->contact[i].dist;
+  }
+  return 1;
+}
+
+static void free_contacts(Contacts* c) {
+  free(c->pairs);
+  free(c->points);
+  free(c->normals);
+  free(c->dist);
+}
+
+// Whether d's contacts are c's, moved by at most `jump` (points, normals) and jump / CITO_POINT_JUMP *
+// CITO_DEPTH_JUMP (distances).
+static int same_contacts(const mjData* d, const Contacts* c, mjtNum jump) {
+  if (d->ncon != c->ncon) return 0;
+  mjtNum depth_jump = jump / CITO_POINT_JUMP * CITO_DEPTH_JUMP;
+  for (int i = 0; i < d->ncon; i++) {
+    if (d->contact[i].geom[0] != c->pairs[2 * i] || d->contact[i].geom[1] != c->pairs[2 * i + 1]) return 0;
+    mjtNum deeper = d->contact[i].dist - c->dist[i];
+    if (deeper > depth_jump || deeper < -depth_jump) return 0;
     for (int k = 0; k < 3; k++) {
-      mjtNum moved = d->contact[i].pos[k] - s->points[3 * i + k];
-      if (moved > s->jump || moved < -s->jump) return 0;
+      mjtNum moved = d->contact[i].pos[k] - c->points[3 * i + k];
+      mjtNum turned = d->contact[i].frame[k] - c->normals[3 * i + k];
+      if (moved > jump || moved < -jump || turned > jump || turned < -jump) return 0;
     }
   }
   return 1;
 }
 
 // Evaluate the step from the current (perturbed) inputs, skipping stages below skipstage;
-// store next state and sensors in the plus_* buffers. Returns whether the contact set is nominal.
-static int evaluate(const mjModel* m, mjData* d, Scratch* s, int skipstage) {
+// store next state and sensors in the plus_* buffers. Returns whether the contact set is nominal;
+// when `ahead` is given, keeps the contact set there.
+static int evaluate(const mjModel* m, mjData* d, Scratch* s, int skipstage, Contacts* ahead) {
   mj_forwardSkip(m, d, skipstage, 0);
-  int same = same_contacts(d, s);
+  int same = same_contacts(d, &s->nominal, s->jump);
+  if (ahead && !keep_contacts(d, ahead)) s->failed = 1;
   mju_copy(s->plus_sensor, d->sensordata, m->nsensordata);
   integrate(m, d);
   mju_copy(s->plus_qpos, d->qpos, m->nq);
@@ -85,6 +135,11 @@ static void difference(const mjModel* m, const mjtNum* qpos_before, const mjtNum
   mj_differentiatePos(m, column, h, qpos_before, qpos_after);
   for (int i = 0; i < nv; i++) column[nv + i] = (qvel_after[i] - qvel_before[i]) / h;
   for (int i = 0; i < m->nsensordata; i++) column[2 * nv + i] = (sensor_after[i] - sensor_before[i]) / h;
+}
+
+// column = other when other's first n entries (the state) are smaller in norm.
+static void keep_flatter(mjtNum* column, const mjtNum* other, int n, int size) {
+  if (mju_dot(other, other, n) < mju_dot(column, column, n)) mju_copy(column, other, size);
 }
 
 // Scatter column j of the stacked [x_next; s] derivative into (A or B) and (C or D).
@@ -111,22 +166,9 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
   mju_copy(s->ctrl, d->ctrl, nu);
   s->time = d->time;
   mj_forward(m, d);
-  if (d->ncon > s->pairs_capacity) {
-    int* pairs = (int*)realloc(s->pairs, sizeof(int) * 2 * (size_t)d->ncon);
-    mjtNum* points = pairs ? (mjtNum*)realloc(s->points, sizeof(mjtNum) * 3 * (size_t)d->ncon) : NULL;
-    if (pairs) s->pairs = pairs;
-    if (!pairs || !points) {
-      s->failed = 1;
-      return;
-    }
-    s->points = points;
-    s->pairs_capacity = d->ncon;
-  }
-  s->ncon = d->ncon;
-  for (int i = 0; i < d->ncon; i++) {
-    s->pairs[2 * i] = d->contact[i].geom[0];
-    s->pairs[2 * i + 1] = d->contact[i].geom[1];
-    mju_copy3(s->points + 3 * i, d->contact[i].pos);
+  if (!keep_contacts(d, &s->nominal)) {
+    s->failed = 1;
+    return;
   }
   mju_copy(s->sensor, d->sensordata, m->nsensordata);
   integrate(m, d);
@@ -142,7 +184,7 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
     }
     restore(m, d, s);
     d->ctrl[j] += h;
-    evaluate(m, d, s, mjSTAGE_VEL);
+    evaluate(m, d, s, mjSTAGE_VEL, NULL);
     if (h > 0) {
       difference(m, s->next_qpos, s->next_qvel, s->sensor, s->plus_qpos, s->plus_qvel, s->plus_sensor, eps, s->column);
     } else {
@@ -155,19 +197,20 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
   for (int j = 0; j < nv; j++) {
     restore(m, d, s);
     d->qvel[j] += eps;
-    evaluate(m, d, s, mjSTAGE_POS);
+    evaluate(m, d, s, mjSTAGE_POS, NULL);
     difference(m, s->next_qpos, s->next_qvel, s->sensor, s->plus_qpos, s->plus_qvel, s->plus_sensor, eps, s->column);
     scatter(m, s->column, nv + j, nx, A, C);
   }
 
   // positions: the full pipeline; a perturbation that makes or breaks a contact is retried on
-  // the other side, where the nominal contact set holds
+  // the other side, where the nominal contact set holds; when neither side has it but both sides
+  // agree, the nominal evaluation is the collider's outlier and the central difference is smooth
   for (int j = 0; j < nv; j++) {
     restore(m, d, s);
     mju_zero(s->dq, nv);
     s->dq[j] = 1;
     mj_integratePos(m, d->qpos, s->dq, eps);
-    if (evaluate(m, d, s, mjSTAGE_NONE)) {
+    if (evaluate(m, d, s, mjSTAGE_NONE, &s->ahead)) {
       difference(m, s->next_qpos, s->next_qvel, s->sensor, s->plus_qpos, s->plus_qvel, s->plus_sensor, eps, s->column);
     } else {
       mju_copy(s->ahead_qpos, s->plus_qpos, m->nq);
@@ -175,13 +218,25 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
       mju_copy(s->ahead_sensor, s->plus_sensor, m->nsensordata);
       restore(m, d, s);
       mj_integratePos(m, d->qpos, s->dq, -eps);
-      if (evaluate(m, d, s, mjSTAGE_NONE)) {
+      if (evaluate(m, d, s, mjSTAGE_NONE, NULL)) {
         flags[CITO_FLAG_ONE_SIDED]++;
         difference(m, s->plus_qpos, s->plus_qvel, s->plus_sensor, s->next_qpos, s->next_qvel, s->sensor, eps, s->column);
       } else {
-        flags[CITO_FLAG_UNRESOLVED]++;
         difference(m, s->plus_qpos, s->plus_qvel, s->plus_sensor, s->ahead_qpos, s->ahead_qvel, s->ahead_sensor,
                    2 * eps, s->column);
+        if (same_contacts(d, &s->ahead, 2 * s->jump)) {
+          flags[CITO_FLAG_ONE_SIDED]++;
+        } else {
+          // a switch on both sides: of the three differences, the one least steep in the state is
+          // the one the switches disturb least (each adds its jump / eps)
+          flags[CITO_FLAG_UNRESOLVED]++;
+          difference(m, s->next_qpos, s->next_qvel, s->sensor, s->ahead_qpos, s->ahead_qvel, s->ahead_sensor, eps,
+                     s->other);
+          keep_flatter(s->column, s->other, nx, nx + m->nsensordata);
+          difference(m, s->plus_qpos, s->plus_qvel, s->plus_sensor, s->next_qpos, s->next_qvel, s->sensor, eps,
+                     s->other);
+          keep_flatter(s->column, s->other, nx, nx + m->nsensordata);
+        }
       }
     }
     scatter(m, s->column, j, nx, A, C);
@@ -198,7 +253,7 @@ static void* run_job(void* argument) {
   int nv = m->nv, nu = m->nu, ns = m->nsensordata, nx = 2 * nv;
   int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
   mjData* d = job->d;
-  mjtNum* buffer = (mjtNum*)calloc(4 * m->nq + 4 * nv + 4 * ns + nu + nv + nx + ns + 1, sizeof(mjtNum));
+  mjtNum* buffer = (mjtNum*)calloc(4 * m->nq + 4 * nv + 4 * ns + nu + nv + 2 * (nx + ns) + 1, sizeof(mjtNum));
   Scratch s = {0};
   if (!buffer) {
     job->failed = 1;
@@ -217,7 +272,8 @@ static void* run_job(void* argument) {
     s.ahead_sensor = p; p += ns;
     s.ctrl = p; p += nu;
     s.dq = p; p += nv;
-    s.column = p;
+    s.column = p; p += nx + ns;
+    s.other = p;
     for (int t = job->tid; t < job->T && !s.failed; t += job->nthread) {
       linearize_step(m, d, &s, job->states + (size_t)t * nstate, job->controls + (size_t)t * nu, job->eps,
                      job->A + (size_t)t * nx * nx, job->B + (size_t)t * nx * nu,
@@ -226,8 +282,8 @@ static void* run_job(void* argument) {
     }
     job->failed = s.failed;
   }
-  free(s.pairs);
-  free(s.points);
+  free_contacts(&s.nominal);
+  free_contacts(&s.ahead);
   free(buffer);
   return NULL;
 }
