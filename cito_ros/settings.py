@@ -294,6 +294,9 @@ class LimitSettings:
 class TrackingSettings:
     kp: tuple[float, ...] = setting("PD position gains of the joint trajectory controller (N m/rad)", minimum=0.0)
     kd: tuple[float, ...] = setting("PD velocity gains (N m s/rad)", minimum=0.0)
+    max_error_increase_m: float = setting(
+        "physical pipeline: a start's plan at the goal ends the search only if the PD controller's execution "
+        "ends within this of its executed error; otherwise the next starts run (m)", minimum=0.0)
 
     def check(self, path: str) -> None:
         if len(self.kp) != 7 or len(self.kd) != 7:

@@ -37,13 +37,14 @@ from typing import Callable
 
 import numpy as np
 
+from cito_ros import tracking
 from cito_ros.builder import PlanningProblem, PushRequest, build_problem
 from cito_ros.ilqr import IlqrSolver
 from cito_ros.ipopt import IpoptSolver
 from cito_ros.least_squares import LeastSquaresSolver
 from cito_ros.problem import PushProblem, StageCost
 from cito_ros.results import IterationLog, StageRecord, Status
-from cito_ros.settings import Settings
+from cito_ros.settings import Settings, TrackingSettings
 from cito_ros.solver import IterationMonitor, Solver, StageOutcome
 
 SOLVERS = {"ilqr": IlqrSolver, "least_squares": LeastSquaresSolver, "ipopt": IpoptSolver}
@@ -66,12 +67,13 @@ class Outcome:
 
 @dataclass(frozen=True)
 class Executed:
-    """A candidate's torques executed without the virtual force."""
+    """A candidate's torques executed without the virtual force (and, at the end of a stage, tracked)."""
 
     position_error_m: float
     orientation_error_rad: float
     max_joint_speed_ratio: float
     joint_range_excess_rad: float
+    tracked_position_error_m: float = math.nan  # by a PD joint trajectory controller; nan: not tracked
 
     def rank(self, settings: Settings) -> tuple:
         task = settings.task
@@ -79,15 +81,18 @@ class Executed:
                    and self.orientation_error_rad < task.success_orientation_error_rad)
         beyond_limits = (self.max_joint_speed_ratio > settings.limits.max_joint_speed_ratio
                          or self.joint_range_excess_rad > 0.0)
-        return (beyond_limits, not at_goal,
+        # not math.isnan: an untracked candidate is never taken for a trackable one
+        trackable = self.tracked_position_error_m - self.position_error_m <= settings.tracking.max_error_increase_m
+        return (beyond_limits, not at_goal, not trackable,
                 self.position_error_m / task.success_position_error_m
                 + self.orientation_error_rad / task.success_orientation_error_rad)
 
     @staticmethod
     def succeeds(rank: tuple) -> bool:
-        """Whether a rank is a success: within the arm's limits and at the goal."""
-        beyond_limits, away, _ = rank
-        return not beyond_limits and not away
+        """Whether a rank ends the search: within the arm's limits, at the goal, and followed by a joint
+        trajectory controller to within tracking.max_error_increase_m of the executed error."""
+        beyond_limits, away, untrackable, _ = rank
+        return not beyond_limits and not away and not untrackable
 
     def reaches(self, settings: Settings) -> bool:
         """Whether it is at the goal with the margin that ends the stages early (stages.goal_margin):
@@ -98,13 +103,24 @@ class Executed:
                 and self.max_joint_speed_ratio <= limits.max_joint_speed_ratio and self.joint_range_excess_rad == 0.0)
 
 
-def execute(executor: PushProblem, torques: np.ndarray) -> Executed:
-    """The executed errors and arm limits of torques, by `executor` (no virtual force)."""
-    return judge(executor, executor.evaluate(executor.with_torques(torques)))
+def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings) -> Executed:
+    """The executed errors and arm limits of torques, by `executor` (no virtual force), and the error of
+    the executed joint trajectory tracked by a PD controller with `gains` (cito_ros.tracking)."""
+    evaluation = executor.evaluate(executor.with_torques(torques))
+    executed = judge(executor, evaluation)
+    if not math.isfinite(executed.position_error_m):
+        return executed
+    simulator = executor.simulator
+    reference = simulator.trajectory(executor.initial_state, evaluation.states, evaluation.sensordata,
+                                     simulator.step_controls(evaluation.knot_controls), {})
+    tracked = tracking.track(simulator, executor.initial_state, reference, gains)
+    error, _ = executor.task.pose_error(np.concatenate([tracked.object_position_m[-1],
+                                                        tracked.object_quaternion[-1]]))
+    return dataclasses.replace(executed, tracked_position_error_m=float(np.linalg.norm(error)))
 
 
 def judge(executor: PushProblem, evaluation) -> Executed:
-    """The executed errors and arm limits of an evaluation of `executor` (no virtual force)."""
+    """The executed errors and arm limits of an evaluation of `executor` (no virtual force), untracked."""
     if not evaluation.finite:
         return Executed(math.inf, math.inf, math.inf, math.inf)
     scene = executor.scene
@@ -159,7 +175,7 @@ class _Run:
         phases, solved = problem.simulator.clock.read() - phases, time.perf_counter()
         self.log += outcome.log
         cost = float(problem.evaluate(outcome.z).cost)
-        executed = execute(executor, problem.split(outcome.z)[0])
+        executed = execute(executor, problem.split(outcome.z)[0], self.clock.settings.tracking)
         ended = time.perf_counter()
         iterations = outcome.log[-1].iteration - offset if outcome.log else 0  # the log starts at iteration 0
         self.records.append(StageRecord(

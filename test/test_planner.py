@@ -9,6 +9,9 @@ from cito_ros.builder import PushRequest, build_problem
 from cito_ros.ilqr import IlqrSolver
 from cito_ros.planner import plan_push
 from cito_ros.results import PHASE_METRICS, IterationLog, Status
+from cito_ros.scene import start_configuration
+from cito_ros.stages import Executed
+from cito_ros.targets import draw_goals
 
 
 SHORT_PUSH_M = [1.09, 0.0]  # the cube pushed 10 cm along +x from the paper's closest start (beta = 7)
@@ -147,6 +150,30 @@ def test_a_start_ends_once_its_executed_plan_is_at_the_goal_with_margin(solved, 
     assert last.status is Status.GOAL_REACHED and "physical" in last.name
     assert result.metrics.position_error_m < settings.stages.goal_margin * settings.task.success_position_error_m
     assert sum(stage.status is Status.GOAL_REACHED for stage in result.stages) == 1
+
+
+def test_a_plan_the_joint_controller_does_not_follow_ranks_below_one_it_follows(settings):
+    at_goal = dict(position_error_m=0.01, orientation_error_rad=0.05, max_joint_speed_ratio=0.9,
+                   joint_range_excess_rad=0.0)
+    followed = Executed(**at_goal, tracked_position_error_m=0.025)
+    lost = Executed(**{**at_goal, "position_error_m": 0.005}, tracked_position_error_m=0.10)
+    untracked = Executed(**at_goal)  # a stage's iterate, judged without tracking
+    assert Executed.succeeds(followed.rank(settings))
+    assert not Executed.succeeds(lost.rank(settings)) and not Executed.succeeds(untracked.rank(settings))
+    assert followed.rank(settings) < lost.rank(settings)
+    away = Executed(**{**at_goal, "position_error_m": 0.03}, tracked_position_error_m=0.03)
+    assert lost.rank(settings) < away.rank(settings)  # at the goal comes first
+
+
+def test_the_search_goes_on_past_a_start_whose_plan_the_controller_does_not_follow(settings):
+    """Goal 13 of `cito-bench targets`: the first start's plan at the goal ends 12.5 cm from it when a PD
+    joint trajectory controller executes it (commit 6e8498e); the plan returned is one it follows."""
+    goal = draw_goals(14, 0, settings)[0][13]
+    result = plan_push("vscm", start_q=start_configuration(goal.beta), target_position_m=goal.target_position_m,
+                       target_yaw_rad=goal.target_yaw_rad, settings=settings)
+    metrics = result.metrics
+    assert metrics.success
+    assert metrics.tracked_position_error_m - metrics.position_error_m <= settings.tracking.max_error_increase_m
 
 
 def test_ilqr_lowers_its_regularization_only_after_a_full_step(settings):
