@@ -22,8 +22,10 @@ succeeds (two side by side when `stages.parallel`, see `solve_physical`):
 
 A stage without the virtual force ends as soon as its plan, executed, is at the goal with a margin
 (`stages.goal_margin`), and the start with it. Every stage's torques, executed without the virtual
-force, are a candidate; the plan returned is the first start's that succeeds, or else the best of all
-(within the arm's speed limits and ranges first, then at the goal, then closest to it).
+force, are a candidate; the plan returned is the first start's that succeeds and that a PD joint
+trajectory controller follows (its tracked execution within tracking.max_error_increase_m of the
+executed error), or else the best of all (within the arm's speed limits and ranges first, then at the
+goal, then followed, then closest to it).
 """
 from __future__ import annotations
 
