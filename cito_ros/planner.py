@@ -20,7 +20,6 @@ from cito_ros import tracking
 from cito_ros.builder import PlanningProblem, PushRequest, build_problem
 from cito_ros.results import IterationLog, Metrics, PlanResult, Status
 from cito_ros.settings import Settings, load_settings
-from cito_ros.simulator import Trajectory
 from cito_ros.stages import Outcome, solve_paper, solve_physical
 
 
@@ -75,17 +74,13 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
     discovery, executor = outcome.discovery, outcome.executor
     simulator, task = discovery.simulator, discovery.task
     _, variables = discovery.split(outcome.planned_z)
-    planned = _trajectory(discovery, outcome.planned_z)
-    trajectory = _trajectory(executor, executor.with_torques(outcome.torques))
+    planned = discovery.trajectory(outcome.planned_z)
+    trajectory = executor.trajectory(executor.with_torques(outcome.torques))
     tracked = tracking.track(simulator, discovery.initial_state, trajectory, settings.tracking)
 
-    def errors(result: Trajectory) -> tuple[float, float]:
-        position_error, angle_error = task.pose_error(
-            np.concatenate([result.object_position_m[-1], result.object_quaternion[-1]]))
-        return float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error))
-
-    position_error, orientation_error = errors(trajectory)
-    planned_position_error, planned_orientation_error = errors(planned)
+    position_error, orientation_error = task.final_errors(trajectory)
+    planned_position_error, planned_orientation_error = task.final_errors(planned)
+    tracked_position_error, tracked_orientation_error = task.final_errors(tracked)
     speed_ratio = float(np.max(np.abs(trajectory.qdot) / discovery.scene.velocity_limit))
     range_excess = discovery.scene.joint_range_excess(trajectory.q)
     status = outcome.status
@@ -95,8 +90,8 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
     metrics = Metrics(
         position_error_m=position_error,
         orientation_error_rad=orientation_error,
-        tracked_position_error_m=errors(tracked)[0],
-        tracked_orientation_error_rad=errors(tracked)[1],
+        tracked_position_error_m=tracked_position_error,
+        tracked_orientation_error_rad=tracked_orientation_error,
         planned_position_error_m=planned_position_error,
         planned_orientation_error_rad=planned_orientation_error,
         physical_inaccuracy_Ns=float(simulator.timestep_s * np.sum(planned.gamma_N)),
@@ -136,11 +131,3 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
         scene=discovery.scene,
     )
-
-
-def _trajectory(problem, z: np.ndarray) -> Trajectory:
-    """The rollout of z that problem evaluated (usually cached), decoded."""
-    evaluation = problem.evaluate(z)
-    return problem.simulator.trajectory(problem.initial_state, evaluation.states, evaluation.sensordata,
-                                        problem.simulator.step_controls(evaluation.knot_controls),
-                                        evaluation.warnings)

@@ -36,7 +36,7 @@ import numpy as np
 from cito_ros import derivatives
 from cito_ros.scene import ARM_JOINTS
 from cito_ros.settings import DerivativeSettings, Weights
-from cito_ros.simulator import Simulator
+from cito_ros.simulator import Simulator, Trajectory
 from cito_ros.task import PushTask
 
 CACHED_EVALUATIONS = 6
@@ -313,6 +313,12 @@ class PushProblem:
         constraints = self._knot_constraints(phi, variables)
         values = np.zeros(0) if constraints is None else constraints.values.reshape(-1)
         return (terminal, running, extra), values, phi
+
+    def trajectory(self, z: np.ndarray) -> Trajectory:
+        """The rollout of z (usually cached), decoded."""
+        evaluation = self.evaluate(z)
+        return self.simulator.trajectory(self.initial_state, evaluation.states, evaluation.sensordata,
+                                         self.simulator.step_controls(evaluation.knot_controls), evaluation.warnings)
 
     def evaluate(self, z: np.ndarray) -> Evaluation:
         z = np.asarray(z, dtype=float)

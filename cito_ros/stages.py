@@ -112,13 +112,8 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
     executed = judge(executor, evaluation)
     if not math.isfinite(executed.position_error_m):
         return executed
-    simulator = executor.simulator
-    reference = simulator.trajectory(executor.initial_state, evaluation.states, evaluation.sensordata,
-                                     simulator.step_controls(evaluation.knot_controls), {})
-    tracked = tracking.track(simulator, executor.initial_state, reference, gains)
-    error, _ = executor.task.pose_error(np.concatenate([tracked.object_position_m[-1],
-                                                        tracked.object_quaternion[-1]]))
-    return dataclasses.replace(executed, tracked_position_error_m=float(np.linalg.norm(error)))
+    tracked = tracking.track(executor.simulator, executor.initial_state, executor.trajectory(evaluation.z), gains)
+    return dataclasses.replace(executed, tracked_position_error_m=executor.task.final_errors(tracked)[0])
 
 
 def judge(executor: PushProblem, evaluation) -> Executed:

@@ -54,6 +54,12 @@ class PushTask:
         """Euler angles (rad) of an object orientation (w, x, y, z) relative to the target."""
         return euler_angles(self.target_rotation.T @ quaternion_matrix(quaternion))
 
+    def final_errors(self, trajectory) -> tuple[float, float]:
+        """Position (m) and orientation (rad) error norms of a Trajectory's last object pose."""
+        position_error, angle_error = self.pose_error(
+            np.concatenate([trajectory.object_position_m[-1], trajectory.object_quaternion[-1]]))
+        return float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error))
+
     def pose_error(self, object_qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position error vector (m) and Euler-angle error (rad) of an object pose (x y z qw qx qy qz)."""
         return object_qpos[:3] - self.target_position_m, self.angle_error(object_qpos[3:7])
