@@ -44,16 +44,21 @@ class Linearization:
 
 
 def linearize(model: mujoco.MjModel, datas: tuple[mujoco.MjData, ...], states_before: np.ndarray,
-              step_controls: np.ndarray, epsilon: float) -> Linearization:
+              step_controls: np.ndarray, epsilon: float, skip_dofs: np.ndarray | None = None,
+              skip_steps: int = 0) -> Linearization:
     """Linearize every step t from states_before[t] (T, nstate) under step_controls[t] (T, nu), on one
-    thread per mjData in `datas` (overwritten)."""
+    thread per mjData in `datas` (overwritten). The position and velocity columns of A and C of the
+    dofs `skip_dofs` (indices) are zero, not computed, in the steps t < skip_steps."""
     T = len(states_before)
     nx, nu, ns = 2 * model.nv, model.nu, model.nsensordata
     A, B = np.empty((T, nx, nx)), np.empty((T, nx, nu))
     C, D = np.empty((T, ns, nx)), np.empty((T, ns, nu))
     flags = np.zeros((T, 3), dtype=np.int32)
+    skip = np.zeros(model.nv, dtype=np.int32)
+    if skip_dofs is not None:
+        skip[skip_dofs] = 1
     _native.linearize(model._address, tuple(d._address for d in datas), T, np.ascontiguousarray(states_before),
-                      np.ascontiguousarray(step_controls), epsilon, A, B, C, D, flags)
+                      np.ascontiguousarray(step_controls), epsilon, skip, skip_steps, A, B, C, D, flags)
     return Linearization(A, B, C, D, flags)
 
 

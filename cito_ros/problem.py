@@ -435,13 +435,22 @@ class PushProblem:
         return evaluation
 
     def linearize(self, z: np.ndarray) -> derivatives.Linearization:
-        """The per-step linearization of the rollout of z."""
+        """The per-step linearization of the rollout of z.
+
+        Without the virtual force, nothing the controls do reaches the object before the arm first
+        touches it (the dynamics are block-diagonal there), and nothing that reaches the object
+        then acts back on the arm: the object's columns of those steps are left out (zero), which
+        changes no derivative of the cost with respect to the decisions."""
         evaluation = self.evaluate(z)
         states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
+        untouched = 0
+        if not self.cost.virtual_force:
+            touching = np.flatnonzero(evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0)
+            untouched = int(touching[0]) if touching.size else self.n_steps
         with self.simulator.clock.measure("linearization"):
             return derivatives.linearize(self.scene.model, self._linearization_data, states_before,
                                          self.simulator.step_controls(evaluation.knot_controls),
-                                         self.derivative_settings.epsilon)
+                                         self.derivative_settings.epsilon, self.scene.object_dofs, untouched)
 
     def _adjoint(self, evaluation: Evaluation):
         """d(dynamic cost terms)/dz and d(knot mean phi)/dz through the dynamics, by the adjoint pass."""

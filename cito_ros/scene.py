@@ -85,6 +85,7 @@ class Scene:
         object_joint = m.joint(OBJECT_JOINT)
         self.object_qpos_adr = int(object_joint.qposadr[0])
         self.object_dof_adr = int(object_joint.dofadr[0])
+        self.object_dofs = np.arange(self.object_dof_adr, self.object_dof_adr + 6)  # a free joint's
         # where the object's qpos and qvel sit in a mjSTATE_FULLPHYSICS state (time, qpos, qvel, ...)
         self.state_qpos_adr = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME)  # qpos, then qvel, in a state
         self._state_object_adr = self.state_qpos_adr + self.object_qpos_adr

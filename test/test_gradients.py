@@ -1,5 +1,6 @@
 """Exact derivatives: the adjoint gradient and constraint Jacobian against central differences,
 and the fallback where a contact switch makes a step's linearization unreliable."""
+import dataclasses
 import json
 from pathlib import Path
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from cito_ros.builder import PushRequest, build_problem
-from cito_ros.derivatives import adjoint, linearize
+from cito_ros.derivatives import adjoint, forward_sensitivities, linearize
 from cito_ros.problem import PushProblem, StageCost
 from cito_ros.task import PushTask
 
@@ -218,3 +219,65 @@ def test_bad_gradient_settings(settings):
         settings.with_overrides({"gradient.method": "magic"})
     with pytest.raises(ValueError, match=r"weights.scm.w4: missing"):
         settings.with_overrides({"weights.scm.w4": None})
+
+
+def strike(problem):
+    """Constant torques, shoulder down and elbow in: from q0(7) the plate strikes the cube mid-horizon."""
+    torques = np.zeros((problem.n_knots, 7))
+    torques[:, 1], torques[:, 3] = 0.2 * problem.scene.torque_limit[1], -0.2 * problem.scene.torque_limit[3]
+    return problem.with_torques(torques)
+
+
+def test_linearization_is_mujocos_transition_fd_from_the_nominal_warmstart(settings):
+    """Steps of the strike without a contact switch: the native linearization is mjd_transitionFD's
+    forward differences, with the constraint solver warmstarted at the nominal step's accelerations."""
+    problem = make_problem(settings, "vscm")
+    model = problem.scene.model
+    evaluation = problem.evaluate(strike(problem))
+    states_before = np.vstack([problem.initial_state[None], evaluation.states[:-1]])
+    controls = problem.simulator.step_controls(evaluation.knot_controls)
+    nx, ns, eps = 2 * model.nv, model.nsensordata, settings.gradient.epsilon
+    data = mujoco.MjData(model)
+    for step in (0, 40, 100):  # the cube on the table; the plate on it, too
+        ours = linearize(model, (data,), states_before[step:step + 1], controls[step:step + 1], eps)
+        assert ours.info()["one_sided_columns"] == 0 and ours.info()["unresolved_columns"] == 0
+        mujoco.mj_setState(model, data, states_before[step], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        data.ctrl[:], data.qacc_warmstart[:] = controls[step], 0.0
+        mujoco.mj_forward(model, data)
+        assert data.ncon > 0
+        data.qacc_warmstart[:] = data.qacc
+        A, B = np.zeros((nx, nx)), np.zeros((nx, model.nu))
+        C, D = np.zeros((ns, nx)), np.zeros((ns, model.nu))
+        mujoco.mjd_transitionFD(model, data, eps, 0, A, B, C, D)
+        for native, reference in zip((ours.A[0], ours.B[0], ours.C[0], ours.D[0]), (A, B, C, D)):
+            np.testing.assert_allclose(native, reference, rtol=0, atol=1e-12 * np.abs(reference).max())
+
+
+def test_object_columns_left_out_before_the_arm_touches_the_object_change_no_sensitivity(settings):
+    """Without the virtual force the object's columns of the steps before the first touch are not
+    computed: nothing the torques do reaches the object there, so the sensitivities of the sensors
+    and the final state to every knot are those of the full linearization."""
+    posed = make_problem(settings, "vscm")
+    problem = PushProblem(posed.simulator, posed.initial_state, posed.task,
+                          dataclasses.replace(posed.cost, virtual_force=False), posed.derivative_settings,
+                          posed.position_scale_min_m)
+    z = strike(problem)
+    evaluation = problem.evaluate(z)
+    touching = np.flatnonzero(evaluation.sensordata[:, problem.scene.sensors.contact_found.start] > 0)
+    touch = int(touching[0])
+    assert 0 < touch < problem.n_steps // 2
+    assert np.linalg.norm(problem.scene.object_qpos(evaluation.states[-1])[:2] - problem.scene.object_qpos(
+        problem.initial_state)[:2]) > 0.05  # struck: the object's motion after the touch matters
+
+    skipped = problem.linearize(z)
+    full = linearize(problem.scene.model, problem._linearization_data,
+                     np.vstack([problem.initial_state[None], evaluation.states[:-1]]),
+                     problem.simulator.step_controls(evaluation.knot_controls), problem.derivative_settings.epsilon)
+    nv = problem.scene.model.nv
+    columns = np.r_[problem.scene.object_dofs, nv + problem.scene.object_dofs]
+    assert not skipped.A[:touch][:, :, columns].any() and full.A[:touch][:, :, columns].any()
+    np.testing.assert_array_equal(skipped.A[touch:], full.A[touch:])
+    S = problem.steps_per_knot
+    for left_out, computed in zip(forward_sensitivities(skipped.A, skipped.B, skipped.C, skipped.D, S),
+                                  forward_sensitivities(full.A, full.B, full.C, full.D, S)):
+        np.testing.assert_allclose(left_out, computed, rtol=1e-12, atol=1e-12 * np.abs(computed).max())

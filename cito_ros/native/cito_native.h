@@ -25,12 +25,14 @@ enum {
 // states: T x nstate (mjSTATE_FULLPHYSICS), controls: T x nu; outputs row-major per step.
 // Forward differences of size eps, skipping unchanged pipeline stages as mjd_transitionFD does;
 // a position perturbation that changes the set of contacts is retried on the other side; a
-// control at its limit is differenced inward. Each step starts from its own state with a zero
-// warmstart, so the result does not depend on nthread. Returns 0, or -1 on an unsupported model
-// (error message written to error).
+// control at its limit is differenced inward. Each step starts from its own state: the nominal
+// evaluation from a zero warmstart, then it and every perturbation from the nominal accelerations,
+// so the result does not depend on nthread. The position and velocity columns (of A and C) of the
+// dofs with skip_dofs[j] != 0 (nv entries) are not computed in the steps t < skip_steps and are
+// zero there. Returns 0, or -1 on an unsupported model (error message written to error).
 int cito_linearize(const mjModel* m, mjData** datas, int nthread, int T, const mjtNum* states,
-                   const mjtNum* controls, mjtNum eps, mjtNum* A, mjtNum* B, mjtNum* C, mjtNum* D,
-                   int* flags, char* error, int error_size);
+                   const mjtNum* controls, mjtNum eps, const int* skip_dofs, int skip_steps, mjtNum* A,
+                   mjtNum* B, mjtNum* C, mjtNum* D, int* flags, char* error, int error_size);
 
 // The forward pass of iLQR: n_trials rollouts of n_knots knots of steps_per_knot steps each from
 // initial_state (nstate, mjSTATE_FULLPHYSICS), whose decisions (width per knot) are chosen knot by

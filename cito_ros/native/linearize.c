@@ -12,6 +12,8 @@ typedef struct {
   const mjtNum* states;
   const mjtNum* controls;
   mjtNum eps;
+  const int* skip_dofs;
+  int skip_steps;
   int nthread;
   int tid;
   mjtNum *A, *B, *C, *D;
@@ -32,6 +34,7 @@ typedef struct {
   mjtNum *plus_qpos, *plus_qvel, *plus_sensor;    // a perturbed evaluation
   mjtNum *ahead_qpos, *ahead_qvel, *ahead_sensor; // the forward one, when retrying backward
   mjtNum *dq, *column, *other;
+  mjtNum *warmstart;                              // the nominal step's accelerations
   Contacts nominal, ahead;                        // the nominal contact set, the forward perturbation's
   mjtNum jump;                                    // a point moving farther has jumped
   int failed;
@@ -42,7 +45,7 @@ static void restore(const mjModel* m, mjData* d, const Scratch* s) {
   mju_copy(d->qvel, s->qvel, m->nv);
   mju_copy(d->ctrl, s->ctrl, m->nu);
   d->time = s->time;
-  mju_zero(d->qacc_warmstart, m->nv);
+  mju_copy(d->qacc_warmstart, s->warmstart, m->nv);
 }
 
 static void integrate(const mjModel* m, mjData* d) {
@@ -150,9 +153,16 @@ static void scatter(const mjModel* m, const mjtNum* column, int j, int ncol, mjt
   for (int r = 0; r < m->nsensordata; r++) sensor_block[r * ncol + j] = column[nx + r];
 }
 
+// Zero column j of A and C (a column not computed).
+static void skip_column(const mjModel* m, int j, mjtNum* A, mjtNum* C) {
+  int nx = 2 * m->nv;
+  for (int r = 0; r < nx; r++) A[r * nx + j] = 0;
+  for (int r = 0; r < m->nsensordata; r++) C[r * nx + j] = 0;
+}
+
 static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum* state,
-                           const mjtNum* control, mjtNum eps, mjtNum* A, mjtNum* B, mjtNum* C,
-                           mjtNum* D, int* flags) {
+                           const mjtNum* control, mjtNum eps, const int* skip_dofs, mjtNum* A, mjtNum* B,
+                           mjtNum* C, mjtNum* D, int* flags) {
   int nv = m->nv, nu = m->nu, nx = 2 * nv;
   for (int i = 0; i < mjNWARNING; i++) d->warning[i].number = 0;
   s->jump = CITO_POINT_JUMP * eps;
@@ -165,7 +175,14 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
   mju_copy(s->qvel, d->qvel, nv);
   mju_copy(s->ctrl, d->ctrl, nu);
   s->time = d->time;
+  // The constraint solver stops within its tolerance of the solution, at a point that depends on
+  // where it starts. Solved again from its own answer, the nominal step and every perturbation start
+  // at the same point: the solver's residual error is common to both sides of each difference (as in
+  // mjd_transitionFD), and the Newton solver, starting next to each answer, takes fewer iterations.
   mj_forward(m, d);
+  mju_copy(s->warmstart, d->qacc, nv);
+  mju_copy(d->qacc_warmstart, s->warmstart, nv);
+  mj_forwardSkip(m, d, mjSTAGE_VEL, 0);
   if (!keep_contacts(d, &s->nominal)) {
     s->failed = 1;
     return;
@@ -195,6 +212,10 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
 
   // velocities: velocity and acceleration stages (contacts cannot change)
   for (int j = 0; j < nv; j++) {
+    if (skip_dofs && skip_dofs[j]) {
+      skip_column(m, nv + j, A, C);
+      continue;
+    }
     restore(m, d, s);
     d->qvel[j] += eps;
     evaluate(m, d, s, mjSTAGE_POS, NULL);
@@ -206,6 +227,10 @@ static void linearize_step(const mjModel* m, mjData* d, Scratch* s, const mjtNum
   // the other side, where the nominal contact set holds; when neither side has it but both sides
   // agree, the nominal evaluation is the collider's outlier and the central difference is smooth
   for (int j = 0; j < nv; j++) {
+    if (skip_dofs && skip_dofs[j]) {
+      skip_column(m, j, A, C);
+      continue;
+    }
     restore(m, d, s);
     mju_zero(s->dq, nv);
     s->dq[j] = 1;
@@ -253,7 +278,7 @@ static void* run_job(void* argument) {
   int nv = m->nv, nu = m->nu, ns = m->nsensordata, nx = 2 * nv;
   int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
   mjData* d = job->d;
-  mjtNum* buffer = (mjtNum*)calloc(4 * m->nq + 4 * nv + 4 * ns + nu + nv + 2 * (nx + ns) + 1, sizeof(mjtNum));
+  mjtNum* buffer = (mjtNum*)calloc(4 * m->nq + 5 * nv + 4 * ns + nu + nv + 2 * (nx + ns) + 1, sizeof(mjtNum));
   Scratch s = {0};
   if (!buffer) {
     job->failed = 1;
@@ -272,11 +297,13 @@ static void* run_job(void* argument) {
     s.ahead_sensor = p; p += ns;
     s.ctrl = p; p += nu;
     s.dq = p; p += nv;
+    s.warmstart = p; p += nv;
     s.column = p; p += nx + ns;
     s.other = p;
     for (int t = job->tid; t < job->T && !s.failed; t += job->nthread) {
       linearize_step(m, d, &s, job->states + (size_t)t * nstate, job->controls + (size_t)t * nu, job->eps,
-                     job->A + (size_t)t * nx * nx, job->B + (size_t)t * nx * nu,
+                     t < job->skip_steps ? job->skip_dofs : NULL, job->A + (size_t)t * nx * nx,
+                     job->B + (size_t)t * nx * nu,
                      job->C + (size_t)t * ns * nx, job->D + (size_t)t * ns * nu,
                      job->flags + (size_t)t * CITO_NFLAG);
     }
@@ -289,8 +316,8 @@ static void* run_job(void* argument) {
 }
 
 int cito_linearize(const mjModel* m, mjData** datas, int nthread, int T, const mjtNum* states,
-                   const mjtNum* controls, mjtNum eps, mjtNum* A, mjtNum* B, mjtNum* C, mjtNum* D,
-                   int* flags, char* error, int error_size) {
+                   const mjtNum* controls, mjtNum eps, const int* skip_dofs, int skip_steps, mjtNum* A,
+                   mjtNum* B, mjtNum* C, mjtNum* D, int* flags, char* error, int error_size) {
   if (m->na) {
     snprintf(error, error_size, "models with actuator activations are not supported");
     return -1;
@@ -312,7 +339,8 @@ int cito_linearize(const mjModel* m, mjData** datas, int nthread, int T, const m
     return -1;
   }
   for (int i = 0; i < nthread; i++) {
-    jobs[i] = (Job){m, datas[i], T, states, controls, eps, nthread, i, A, B, C, D, flags, 0};
+    jobs[i] = (Job){m, datas[i], T, states, controls, eps, skip_dofs, skip_steps, nthread, i, A, B, C, D, flags,
+                    0};
   }
   int failed = cito_run_threads(run_job, jobs, sizeof(Job), nthread) != 0;
   for (int i = 0; i < nthread; i++) failed |= jobs[i].failed;

@@ -45,11 +45,11 @@ static int get_datas(const mjModel* m, PyObject* data_addresses, mjData** datas)
 static PyObject* linearize(PyObject* self, PyObject* args) {
   (void)self;
   unsigned long long address;
-  int T;
+  int T, skip_steps;
   double eps;
-  PyObject *data_addresses, *states, *controls, *A, *B, *C, *D, *flags;
-  if (!PyArg_ParseTuple(args, "KOiOOdOOOOO", &address, &data_addresses, &T, &states, &controls, &eps, &A,
-                        &B, &C, &D, &flags)) {
+  PyObject *data_addresses, *states, *controls, *skip_dofs, *A, *B, *C, *D, *flags;
+  if (!PyArg_ParseTuple(args, "KOiOOdOiOOOOO", &address, &data_addresses, &T, &states, &controls, &eps,
+                        &skip_dofs, &skip_steps, &A, &B, &C, &D, &flags)) {
     return NULL;
   }
   const mjModel* m = (const mjModel*)(uintptr_t)address;
@@ -62,14 +62,15 @@ static PyObject* linearize(PyObject* self, PyObject* args) {
   }
   Py_ssize_t nx = 2 * m->nv, nu = m->nu, ns = m->nsensordata;
   Py_ssize_t nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS);
-  Py_buffer views[7];
-  struct { PyObject* object; Py_ssize_t count; int writable; char format; const char* name; } specs[7] = {
+  Py_buffer views[8];
+  struct { PyObject* object; Py_ssize_t count; int writable; char format; const char* name; } specs[8] = {
     {states, T * nstate, 0, 'd', "states"}, {controls, T * nu, 0, 'd', "controls"},
+    {skip_dofs, m->nv, 0, 'i', "skip_dofs"},
     {A, T * nx * nx, 1, 'd', "A"}, {B, T * nx * nu, 1, 'd', "B"}, {C, T * ns * nx, 1, 'd', "C"},
     {D, T * ns * nu, 1, 'd', "D"}, {flags, T * CITO_NFLAG, 1, 'i', "flags"},
   };
   int acquired = 0;
-  for (; acquired < 7; acquired++) {
+  for (; acquired < 8; acquired++) {
     if (get_buffer(specs[acquired].object, &views[acquired], specs[acquired].count, specs[acquired].writable,
                    specs[acquired].format, specs[acquired].name) != 0) {
       break;
@@ -77,14 +78,15 @@ static PyObject* linearize(PyObject* self, PyObject* args) {
   }
   int status = 0;
   char error[256] = "";
-  if (acquired == 7) {
+  if (acquired == 8) {
     Py_BEGIN_ALLOW_THREADS
-    status = cito_linearize(m, datas, nthread, T, views[0].buf, views[1].buf, eps, views[2].buf,
-                            views[3].buf, views[4].buf, views[5].buf, views[6].buf, error, sizeof(error));
+    status = cito_linearize(m, datas, nthread, T, views[0].buf, views[1].buf, eps, views[2].buf, skip_steps,
+                            views[3].buf, views[4].buf, views[5].buf, views[6].buf, views[7].buf, error,
+                            sizeof(error));
     Py_END_ALLOW_THREADS
   }
   for (int i = 0; i < acquired; i++) PyBuffer_Release(&views[i]);
-  if (acquired < 7) return NULL;
+  if (acquired < 8) return NULL;
   if (status != 0) {
     PyErr_SetString(PyExc_RuntimeError, error);
     return NULL;
@@ -161,7 +163,8 @@ static PyObject* feedback_rollouts(PyObject* self, PyObject* args) {
 
 static PyMethodDef methods[] = {
   {"linearize", linearize, METH_VARARGS,
-   "linearize(model_address, data_addresses, T, states, controls, eps, A, B, C, D, flags)\n"
+   "linearize(model_address, data_addresses, T, states, controls, eps, skip_dofs, skip_steps, A, B, C, D,\n"
+   "flags)\n"
    "Finite-difference linearization of T steps into the preallocated arrays, one thread per\n"
    "mjData in the tuple data_addresses (see cito_native.h)."},
   {"feedback_rollouts", feedback_rollouts, METH_VARARGS,
