@@ -128,9 +128,10 @@ def test_same_case_twice_gives_identical_plans(settings):
 
 @pytest.mark.parametrize("max_iter", [100, 1])
 def test_starts_side_by_side_or_one_after_the_other_give_the_same_plan(settings, max_iter):
-    """Side by side, a later start is abandoned once an earlier one succeeds (max_iter 100: the first
-    succeeds), and an early finish of a later start waits for the earlier ones (max_iter 1: none
-    succeeds, every start runs): the plan and its stages are those of the starts one after the other."""
+    """Side by side, a later start is abandoned once an earlier one succeeds (max_iter 100: a start
+    before the last succeeds), and an early finish of a later start waits for the earlier ones
+    (max_iter 1: none succeeds, every start runs): the plan and its stages are those of the starts one
+    after the other."""
     one_horizon = {"solver.max_iter": max_iter, "stages.horizon_scales": [1.0]}
     parallel, serial = (plan_push("scm", 7, target_position_m=SHORT_PUSH_M, settings=settings.with_overrides(
         {**one_horizon, "stages.parallel": side_by_side})) for side_by_side in (True, False))
@@ -139,7 +140,10 @@ def test_starts_side_by_side_or_one_after_the_other_give_the_same_plan(settings,
         [(s.name, s.status, s.iterations) for s in serial.stages]
     assert parallel.metrics.success == (max_iter == 100)
     starts = {s.name.split(":")[0] for s in serial.stages}
-    assert len(starts) == (1 if max_iter == 100 else len(settings.stages.starts))
+    if max_iter == 100:  # the starts after the successful one never ran
+        assert len(starts) < len(settings.stages.starts)
+    else:
+        assert len(starts) == len(settings.stages.starts)
 
 
 def test_a_start_ends_once_its_executed_plan_is_at_the_goal_with_margin(solved, settings):
