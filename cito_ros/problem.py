@@ -434,6 +434,10 @@ class PushProblem:
             raise FloatingPointError("the rollout is not finite; no derivatives")
         return evaluation
 
+    def states_before(self, evaluation: Evaluation) -> np.ndarray:
+        """(T, nstate): the state each step of an evaluation starts from."""
+        return np.vstack([self.initial_state[None], evaluation.states[:-1]])
+
     def linearize(self, z: np.ndarray) -> derivatives.Linearization:
         """The per-step linearization of the rollout of z.
 
@@ -442,7 +446,7 @@ class PushProblem:
         then acts back on the arm: the object's columns of those steps are left out (zero), which
         changes no derivative of the cost with respect to the decisions."""
         evaluation = self.evaluate(z)
-        states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
+        states_before = self.states_before(evaluation)
         untouched = 0
         if not self.cost.virtual_force:
             touching = np.flatnonzero(evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0)
@@ -538,7 +542,7 @@ class PushProblem:
                 return dynamic, np.concatenate([terminal, running.ravel()])
             return dynamic, phi if self.n_constraints_per_knot else None
 
-        states_before = np.vstack([self.initial_state[None], evaluation.states[:-1]])
+        states_before = self.states_before(evaluation)
         with self.simulator.clock.measure("linearization"):
             return derivatives.restart_differences(
                 self.simulator, states_before, evaluation.states, evaluation.sensordata, evaluation.z, columns,

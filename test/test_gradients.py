@@ -1,6 +1,5 @@
 """Exact derivatives: the adjoint gradient and constraint Jacobian against central differences,
 and the fallback where a contact switch makes a step's linearization unreliable."""
-import dataclasses
 import json
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import pytest
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.derivatives import adjoint, forward_sensitivities, linearize
 from cito_ros.problem import PushProblem, StageCost
+from cito_ros.stages import physical_twin
 from cito_ros.task import PushTask
 
 
@@ -234,7 +234,7 @@ def test_linearization_is_mujocos_transition_fd_from_the_nominal_warmstart(setti
     problem = make_problem(settings, "vscm")
     model = problem.scene.model
     evaluation = problem.evaluate(strike(problem))
-    states_before = np.vstack([problem.initial_state[None], evaluation.states[:-1]])
+    states_before = problem.states_before(evaluation)
     controls = problem.simulator.step_controls(evaluation.knot_controls)
     nx, ns, eps = 2 * model.nv, model.nsensordata, settings.gradient.epsilon
     data = mujoco.MjData(model)
@@ -258,9 +258,7 @@ def test_object_columns_left_out_before_the_arm_touches_the_object_change_no_sen
     computed: nothing the torques do reaches the object there, so the sensitivities of the sensors
     and the final state to every knot are those of the full linearization."""
     posed = make_problem(settings, "vscm")
-    problem = PushProblem(posed.simulator, posed.initial_state, posed.task,
-                          dataclasses.replace(posed.cost, virtual_force=False), posed.derivative_settings,
-                          posed.position_scale_min_m)
+    problem = physical_twin(posed, posed.cost)
     z = strike(problem)
     evaluation = problem.evaluate(z)
     touching = np.flatnonzero(evaluation.sensordata[:, problem.scene.sensors.contact_found.start] > 0)
@@ -271,7 +269,7 @@ def test_object_columns_left_out_before_the_arm_touches_the_object_change_no_sen
 
     skipped = problem.linearize(z)
     full = linearize(problem.scene.model, problem._linearization_data,
-                     np.vstack([problem.initial_state[None], evaluation.states[:-1]]),
+                     problem.states_before(evaluation),
                      problem.simulator.step_controls(evaluation.knot_controls), problem.derivative_settings.epsilon)
     nv = problem.scene.model.nv
     columns = np.r_[problem.scene.object_dofs, nv + problem.scene.object_dofs]
