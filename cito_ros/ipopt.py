@@ -4,6 +4,13 @@ IPOPT sees scaled variables x = z / scale (solver.scale_variables), the cost
 and its gradient, the constraints and their dense Jacobian. Its options come
 from `solver.ipopt` in the settings; the shared stopping rules (cancellation,
 time limit, stall) run in its intermediate callback.
+
+Curvature: `limited_memory` is the paper's (IPOPT's quasi-Newton model, the
+`hessian_approximation` of the options); `gauss_newton` gives IPOPT the
+Hessian 2 J^T J of the cost r . r from the residual Jacobian J (forward
+sensitivities through the same per-step linearization as the gradient) and
+leaves out the constraints' curvature: CCCM's constraints act on knot means of
+the signed distance, whose second derivatives the linearizations do not give.
 """
 from __future__ import annotations
 
@@ -11,7 +18,7 @@ import cyipopt
 import numpy as np
 
 from cito_ros.results import Status
-from cito_ros.settings import SolverSettings
+from cito_ros.settings import IPOPT_CURVATURES, SolverSettings
 from cito_ros.solver import IterationMonitor, NlpPoint, NlpProblem, StageOutcome, violation
 
 # IPOPT return codes (IpReturnCodes.h)
@@ -27,6 +34,7 @@ class _Callbacks:
         self.lower_bounds, self.upper_bounds = problem.constraint_bounds()
         self.last: NlpPoint | None = None
         self.stop_reason: Status | None = None
+        self.lower_triangle = np.tril_indices(problem.size)
 
     def _evaluate(self, x) -> NlpPoint:
         self.last = self.problem.evaluate(x * self.scale)
@@ -58,6 +66,17 @@ class _Callbacks:
         rows, columns = np.indices((self.problem.n_constraints, self.problem.size))
         return rows.ravel(), columns.ravel()
 
+    def hessian(self, x, lagrange, obj_factor):
+        """The Gauss-Newton Hessian of the cost (lower triangle), none of the constraints'."""
+        try:
+            jacobian = self.problem.residual_jacobian(x * self.scale) * self.scale[None, :]
+        except FloatingPointError:
+            return np.zeros(len(self.lower_triangle[0]))
+        return (2.0 * obj_factor) * (jacobian.T @ jacobian)[self.lower_triangle]
+
+    def hessianstructure(self):
+        return self.lower_triangle
+
     def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size,
                      alpha_du, alpha_pr, ls_trials):
         last_violation = violation(self.last, self.lower_bounds, self.upper_bounds) if self.last else 0.0
@@ -69,9 +88,13 @@ class _Callbacks:
 class IpoptSolver:
     """Solves one stage with IPOPT (the settings' `solver` section)."""
 
-    def __init__(self, settings: SolverSettings):
+    def __init__(self, settings: SolverSettings, curvature: str = "limited_memory"):
+        if curvature not in IPOPT_CURVATURES:
+            raise ValueError(f"IPOPT's curvature must be one of {list(IPOPT_CURVATURES)}, got {curvature!r}")
         self.settings = settings
         self.options = settings.ipopt_options
+        if curvature == "gauss_newton":
+            self.options["hessian_approximation"] = "exact"
 
     @property
     def violation_tolerance(self) -> float:

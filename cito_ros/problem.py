@@ -52,6 +52,10 @@ class StageCost:
       velocity, h its half size): a plan that ends with the object at rest
     contact: weight of sum_t profile_t max(gap_t, 0)^2, gap_t the distance between the plate and the
       object (the plate drawn onto the object at the steps the profile weights)
+    complementarity: CCCM with its slack eliminated: weight of sum_l <(phi gamma)^2>_l (the mean over
+      knot l's steps) in place of the slack s_l, its cost w5 sum s_l^2 and the constraints. At the
+      paper's optimum s_l = phi_l gamma_l; what is left is box-bounded (a least-squares problem), and
+      the simulator's contacts keep phi from going far below 0. 0: the model's own variables
     """
 
     weights: Weights
@@ -63,6 +67,7 @@ class StageCost:
     object_velocity: float
     contact: float
     contact_profile: np.ndarray | None  # (T,) step weights of the contact term
+    complementarity: float = 0.0
 
     @classmethod
     def paper(cls, weights: Weights) -> "StageCost":
@@ -108,6 +113,7 @@ class Evaluation:
     gradient: np.ndarray | None = None
     jacobian: np.ndarray | None = None
     residual_jacobian: np.ndarray | None = None
+    linearization: derivatives.Linearization | None = None  # shared by the gradient and the residual Jacobian
     derivative_info: dict[str, int] = field(default_factory=dict)
 
 
@@ -127,7 +133,18 @@ class PushProblem:
         model = self.scene.model
         self.n_knots, self.steps_per_knot, self.n_steps = simulator.n_knots, simulator.steps_per_knot, simulator.n_steps
         self.n_joints = len(ARM_JOINTS)
-        self.variables = self.contact_model.knot_variables if cost.virtual_force else ()
+        # CCCM's slack eliminated: gamma is its only knot variable, and it has no constraints
+        self.slack_eliminated = cost.virtual_force and cost.complementarity > 0
+        if self.slack_eliminated and not self.contact_model.knot_constraints(
+                np.zeros(1), np.zeros((1, len(self.contact_model.knot_variables)))).names:
+            raise ValueError(f"{self.contact_model.name} has no complementarity constraints to eliminate a slack "
+                             f"of; the complementarity weight is CCCM's")
+        if not cost.virtual_force:
+            self.variables = ()
+        elif self.slack_eliminated:
+            self.variables = (self.contact_model.knot_variables[self.contact_model.control_variable],)
+        else:
+            self.variables = self.contact_model.knot_variables
         self.width = self.n_joints + len(self.variables)
         self.size = self.n_knots * self.width
 
@@ -190,7 +207,7 @@ class PushProblem:
         return knots.reshape(-1)
 
     def _knot_constraints(self, phi: np.ndarray, variables: np.ndarray):
-        if not self.cost.virtual_force:
+        if not self.cost.virtual_force or self.slack_eliminated:
             return None
         return self.contact_model.knot_constraints(phi, variables)
 
@@ -254,7 +271,8 @@ class PushProblem:
     def _running_residuals(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residuals of every step, (T, k), and their derivatives with respect to the step's used
         sensor rows, (T, k, rows): end-effector velocity (3), the virtual force (1, with it), joint
-        speeds (7) and positions (7) beyond their margins, the contact term (1: the plate-object gap)."""
+        speeds (7) and positions (7) beyond their margins, the contact term (1: the plate-object gap), and
+        CCCM's complementarity with the slack eliminated (1: phi gamma)."""
         w, c, T = self.weights, self.cost, self.n_steps
         used = {name: slice(start, start + size) for name, start, size in (
             ("ee", 0, 3), ("gamma", 3, 1), ("local", 4, 3), ("q", 7, 7), ("qdot", 14, 7), ("gap", 21, 1))}
@@ -283,7 +301,19 @@ class PushProblem:
             gap = sensordata[:, self.gap_row]
             root = np.sqrt(c.contact * c.contact_profile) * (gap > 0)
             block((root * gap)[:, None], root[:, None, None], used["gap"])
+        if self.slack_eliminated:
+            root = math.sqrt(c.complementarity / self.steps_per_knot)
+            phi, d_phi = self._signed_distance_derivative(sensordata)
+            gamma = sensordata[:, self.gamma_row]
+            derivative = np.concatenate([root * phi[:, None], root * gamma[:, None] * d_phi], axis=1)
+            block((root * phi * gamma)[:, None], derivative[:, None, :], slice(used["gamma"].start, used["local"].stop))
         return np.concatenate([b[0] for b in blocks], axis=1), np.concatenate([b[1] for b in blocks], axis=1)
+
+    def _variable_residuals(self, variables: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The contact model's residuals on its knot variables alone (none with CCCM's slack eliminated)."""
+        if not self.variables or self.slack_eliminated:
+            return np.zeros(0), np.zeros((0, *variables.shape))
+        return self.contact_model.variable_residuals(variables, self.weights)
 
     def _signed_distance_derivative(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """phi per step and its derivative with respect to the robot candidate in the object frame."""
@@ -308,7 +338,7 @@ class PushProblem:
         """Residual blocks (terminal, running, variables), constraints and knot mean signed distances."""
         terminal, _ = self._terminal_residuals(states[-1])
         running, _ = self._running_residuals(sensordata)
-        extra = self.contact_model.variable_residuals(variables, self.weights)[0] if self.variables else np.zeros(0)
+        extra = self._variable_residuals(variables)[0]
         phi = self.signed_distance(sensordata).reshape(self.n_knots, self.steps_per_knot).mean(axis=1)
         constraints = self._knot_constraints(phi, variables)
         values = np.zeros(0) if constraints is None else constraints.values.reshape(-1)
@@ -366,10 +396,13 @@ class PushProblem:
         return self.evaluate(z).residuals
 
     def derivatives(self, z: np.ndarray, *, cached: bool = True) -> Evaluation:
-        """Evaluation with the cost gradient (size,) and constraint Jacobian (n_constraints, size)."""
+        """Evaluation with the cost gradient (size,) and constraint Jacobian (n_constraints, size);
+        cached=False computes them, and the linearization they come from, again."""
         evaluation = self._finite(z)
         if cached and evaluation.gradient is not None:
             return evaluation
+        if not cached:
+            evaluation.linearization = None
         if self.derivative_settings.method == "forward_differences":
             info = {"restarted_knots": self.n_knots}
             d_dynamics, d_phi = self._restart_differences(evaluation, self.n_knots)
@@ -378,7 +411,7 @@ class PushProblem:
         gradient = d_dynamics
         if self.variables:
             _, variables = self.split(evaluation.z)
-            values, derivative = self.contact_model.variable_residuals(variables, self.weights)
+            values, derivative = self._variable_residuals(variables)
             gradient = gradient + self._knot_layout(2 * np.einsum("k,kln->ln", values, derivative))
         evaluation.gradient, evaluation.jacobian = gradient, self._constraint_jacobian(evaluation, d_phi)
         evaluation.derivative_info = info
@@ -396,7 +429,7 @@ class PushProblem:
             jacobian[:len(dynamic)] = dynamic
             if self.variables:
                 _, variables = self.split(evaluation.z)
-                _, derivative = self.contact_model.variable_residuals(variables, self.weights)
+                _, derivative = self._variable_residuals(variables)
                 if len(derivative):
                     jacobian[len(dynamic):] = np.stack([self._knot_layout(d) for d in derivative])
             evaluation.residual_jacobian, evaluation.derivative_info = jacobian, {"restarted_knots": self.n_knots}
@@ -415,7 +448,7 @@ class PushProblem:
         jacobian[:rows] = self._to_decisions(by_controls.reshape(rows, N, nu))
         if self.variables:
             _, variables = self.split(evaluation.z)
-            _, derivative = self.contact_model.variable_residuals(variables, self.weights)
+            _, derivative = self._variable_residuals(variables)
             if len(derivative):
                 jacobian[rows:] = np.stack([self._knot_layout(d) for d in derivative])
         info = {**linearization.info(), "restarted_knots": 0}
@@ -446,15 +479,19 @@ class PushProblem:
         then acts back on the arm: the object's columns of those steps are left out (zero), which
         changes no derivative of the cost with respect to the decisions."""
         evaluation = self.evaluate(z)
+        if evaluation.linearization is not None:
+            return evaluation.linearization
         states_before = self.states_before(evaluation)
         untouched = 0
         if not self.cost.virtual_force:
             touching = np.flatnonzero(evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0)
             untouched = int(touching[0]) if touching.size else self.n_steps
         with self.simulator.clock.measure("linearization"):
-            return derivatives.linearize(self.scene.model, self._linearization_data, states_before,
-                                         self.simulator.step_controls(evaluation.knot_controls),
-                                         self.derivative_settings.epsilon, self.scene.object_dofs, untouched)
+            evaluation.linearization = derivatives.linearize(
+                self.scene.model, self._linearization_data, states_before,
+                self.simulator.step_controls(evaluation.knot_controls), self.derivative_settings.epsilon,
+                self.scene.object_dofs, untouched)
+        return evaluation.linearization
 
     def _adjoint(self, evaluation: Evaluation):
         """d(dynamic cost terms)/dz and d(knot mean phi)/dz through the dynamics, by the adjoint pass."""
@@ -594,7 +631,7 @@ class PushProblem:
         lxx, lcc, lcx = 2 * (Jx.mT @ Jx), 2 * (Jc.mT @ Jc), 2 * (Jc.mT @ Jx)
         if self.variables:
             _, variables = self.split(z)
-            values, derivative = self.contact_model.variable_residuals(variables, self.weights)
+            values, derivative = self._variable_residuals(variables)
             for value, d in zip(values, derivative):  # each residual acts on one knot's variables
                 knot = int(np.argmax(np.abs(d).sum(axis=1)))
                 g = np.zeros(w)

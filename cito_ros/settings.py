@@ -213,6 +213,9 @@ class DiscoverySettings:
     reach_weight: float = setting("weight of the plate-object gap, squared, from the start's fraction of the "
                                   "horizon on", minimum=0.0)
     max_iter: int = setting("solver iterations of the discovery", minimum=1)
+    cccm: str = setting("CCCM's discovery: slack_eliminated (s = phi gamma: box-bounded, solved by stages.solver) "
+                        "or constraints (the paper's slack and constraints, by IPOPT)",
+                        choices=("slack_eliminated", "constraints"))
 
 
 @dataclass(frozen=True)
@@ -251,10 +254,16 @@ class PhysicalStages:
                                                            self.only_if_beyond_limits))
 
 
+IPOPT_CURVATURES = ("limited_memory", "gauss_newton")
+
+
 @dataclass(frozen=True)
 class StagesSettings:
     solver: str = setting("solver of the box-bounded stages (SCM, VSCM, physical)",
                           choices=("ilqr", "least_squares", "ipopt"))
+    ipopt_curvature: str = setting("IPOPT's Hessian in the physical pipeline (CCCM's discovery, any stage with "
+                                   "solver: ipopt): gauss_newton, from the linearizations, or limited_memory, the "
+                                   "paper's", choices=IPOPT_CURVATURES)
     starts: tuple[float, ...] = setting("one discovery per entry, drawing the plate onto the object from this "
                                         "fraction of the horizon on", minimum=0.0)
     horizon_scales: tuple[float, ...] = setting("the starts are solved at horizon_s times each of these in "

@@ -48,6 +48,11 @@ class NlpProblem(Protocol):
 
     def constraint_bounds(self) -> tuple[np.ndarray, np.ndarray]: ...
 
+    # the cost as a sum of squares r . r: for Levenberg-Marquardt and Gauss-Newton curvature
+    def residuals(self, z: np.ndarray) -> np.ndarray: ...
+
+    def residual_jacobian(self, z: np.ndarray) -> np.ndarray: ...  # (len(r), size), dense
+
 
 @dataclass(frozen=True)
 class StageOutcome:

@@ -49,7 +49,7 @@ from cito_ros.results import IterationLog, StageRecord, Status
 from cito_ros.settings import Settings, TrackingSettings
 from cito_ros.solver import IterationMonitor, Solver, StageOutcome
 
-SOLVERS = {"ilqr": IlqrSolver, "least_squares": LeastSquaresSolver, "ipopt": IpoptSolver}
+SOLVERS = {"ilqr": IlqrSolver, "least_squares": LeastSquaresSolver}  # and "ipopt", with a curvature
 
 
 @dataclass(frozen=True)
@@ -147,19 +147,21 @@ class _Clock:
 class _Run:
     """The stages of one start: their log, records and candidates."""
 
-    def __init__(self, clock: _Clock, prefix: str, stop: "_Stop | threading.Event | None"):
-        self.clock, self.prefix, self.stop = clock, prefix, stop
+    def __init__(self, clock: _Clock, prefix: str, stop: "_Stop | threading.Event | None", curvature: str):
+        self.clock, self.prefix, self.stop, self.curvature = clock, prefix, stop, curvature
         self.log: list[IterationLog] = []
         self.records: list[StageRecord] = []
         self.interrupted: Status | None = None
 
     def stage(self, problem: PushProblem, kind: str, start: np.ndarray, lower: np.ndarray, upper: np.ndarray,
               name: str, max_iter: int, executor: PushProblem) -> tuple[StageOutcome, Executed]:
-        """Solve one stage with the solver `kind` (IPOPT whenever the problem has constraints)."""
+        """Solve one stage with the solver `kind` (IPOPT, with the run's curvature, whenever the problem
+        has constraints)."""
         # the stage's own budget, capped by solver.max_iter (the CLI's --max-iter)
         settings = dataclasses.replace(self.clock.settings.solver,
                                        max_iter=min(max_iter, self.clock.settings.solver.max_iter))
-        solver: Solver = IpoptSolver(settings) if problem.n_constraints else SOLVERS[kind](settings)
+        solver: Solver = IpoptSolver(settings, self.curvature) if problem.n_constraints or kind == "ipopt" \
+            else SOLVERS[kind](settings)
         offset = self.log[-1].iteration + 1 if self.log else 0
         # a stage without the virtual force evaluates the plan as executed: it ends once that is at the goal
         goal = None if problem.cost.virtual_force else \
@@ -195,7 +197,7 @@ def solve_paper(posed: PlanningProblem, settings: Settings, *,
     began = time.perf_counter()
     executor = physical_twin(problem, StageCost.paper(problem.weights))
     setup_s = time.perf_counter() - began
-    run = _Run(clock, "", cancel)
+    run = _Run(clock, "", cancel, "limited_memory")  # the paper's
     stage, executed = run.stage(problem, "ipopt", problem.initial_guess, problem.lower, problem.upper, "paper",
                                 settings.solver.max_iter, executor)
     best, best_error = stage, planned_error(problem, stage.z)
@@ -316,13 +318,15 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
     base, limits = posed.problem, settings.limits
     T = base.n_steps
     reach = np.where(np.arange(T) >= int(fraction * T), 1.0 / T, 0.0)
+    eliminated = base.n_constraints and settings.stages.discovery.cccm == "slack_eliminated"
     discovery = PushProblem(base.simulator, base.initial_state, base.task,
                             stage_cost(settings, base.weights, True, settings.stages.discovery.reach_weight, reach,
-                                       limits.joint_speed_weight, limits.joint_position_weight),
+                                       limits.joint_speed_weight, limits.joint_position_weight,
+                                       base.weights.w5 if eliminated else 0.0),
                             base.derivative_settings, base.position_scale_min_m)
     executor = physical_twin(discovery, discovery.cost)
     setup_s = time.perf_counter() - began
-    run = _Run(clock, prefix, stop)
+    run = _Run(clock, prefix, stop, settings.stages.ipopt_curvature)
     stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
                                 discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
     planned_z = stage.z
@@ -352,11 +356,12 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
 
 def stage_cost(settings: Settings, weights, virtual_force: bool, contact_weight: float,
                contact_profile: np.ndarray | None, joint_speed_weight: float,
-               joint_position_weight: float) -> StageCost:
+               joint_position_weight: float, complementarity: float = 0.0) -> StageCost:
     limits = settings.limits
     return StageCost(weights, virtual_force, joint_speed_weight, limits.joint_speed_margin,
                      joint_position_weight, limits.joint_position_margin_rad,
-                     0.0 if virtual_force else limits.object_velocity_weight, contact_weight, contact_profile)
+                     0.0 if virtual_force else limits.object_velocity_weight, contact_weight, contact_profile,
+                     complementarity)
 
 
 def touch_profile(discovery: PushProblem, z: np.ndarray, touch_force_N: float) -> np.ndarray:

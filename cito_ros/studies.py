@@ -129,6 +129,7 @@ VARIANTS = (
     Variant("one start", {"stages.starts": [0.3]}),
     Variant("least squares", {"stages.solver": "least_squares"}),
     Variant("ipopt", {"stages.solver": "ipopt"}),
+    Variant("ipopt gauss-newton", {"stages.solver": "ipopt", "stages.ipopt_curvature": "gauss_newton"}),
     Variant("paper problem", {"pipeline": "paper"}),
     Variant("forward differences", {"gradient.method": "forward_differences"}),
     Variant("timestep 2 ms", {}, scene="fine_step"),

@@ -9,6 +9,7 @@ import pytest
 
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.derivatives import adjoint, forward_sensitivities, linearize
+from cito_ros.ipopt import _Callbacks
 from cito_ros.problem import PushProblem, StageCost
 from cito_ros.stages import physical_twin
 from cito_ros.task import PushTask
@@ -123,27 +124,32 @@ def test_a_collider_outlier_at_the_nominal_state_is_differenced_around(simulator
     assert np.abs(np.linalg.eigvals(fine.A[0])).max() < 1.1
 
 
-def every_term(settings, name, virtual_force):
+def every_term(settings, name, virtual_force, complementarity=0.0):
     """The beta = 7 push with every stage-cost term active: limits with tight margins, the object's final
-    velocity, and the contact term over the second half of the horizon."""
+    velocity, and the contact term over the second half of the horizon (and CCCM's slack eliminated
+    with a positive complementarity weight)."""
     base = make_problem(settings, name)
     profile = np.where(np.arange(base.n_steps) >= base.n_steps // 2, 1.0 / base.n_steps, 0.0)
     cost = StageCost(base.weights, virtual_force, joint_speed=100.0, joint_speed_margin=0.05, joint_position=100.0,
-                     joint_position_margin_rad=2.0, object_velocity=10.0, contact=50.0, contact_profile=profile)
+                     joint_position_margin_rad=2.0, object_velocity=10.0, contact=50.0, contact_profile=profile,
+                     complementarity=complementarity)
     return PushProblem(base.simulator, base.initial_state, base.task, cost, settings.gradient,
                        settings.task.position_error_scale_min_m)
 
 
-@pytest.mark.parametrize("name, virtual_force", [("cccm", True), ("vscm", True), ("vscm", False)])
-def test_residual_jacobian_matches_differences_and_the_gradient(settings, name, virtual_force):
-    problem = every_term(settings, name, virtual_force)
+@pytest.mark.parametrize("name, virtual_force, complementarity",
+                         [("cccm", True, 0.0), ("cccm", True, 1.0e3), ("vscm", True, 0.0), ("vscm", False, 0.0)])
+def test_residual_jacobian_matches_differences_and_the_gradient(settings, name, virtual_force, complementarity):
+    problem = every_term(settings, name, virtual_force, complementarity)
     z = interior_point(problem, seed=11, spread=0.3)
     evaluation = problem.evaluate(z)
     assert evaluation.cost == pytest.approx(evaluation.residuals @ evaluation.residuals, rel=1e-12)
     running, _ = problem._running_residuals(evaluation.sensordata)
-    first = 4 if virtual_force else 3  # columns: ee velocity (3), [gamma], 7 speeds, 7 positions, contact
+    # columns: ee velocity (3), [gamma], 7 speeds, 7 positions, contact, [phi gamma]
+    first = 4 if virtual_force else 3
     active = np.abs(running).max(axis=0) > 0
-    assert active[first:first + 7].any() and active[first + 7:first + 14].any() and active[-1], active
+    assert active[first:first + 7].any() and active[first + 7:first + 14].any() and active[first + 14], active
+    assert running.shape[1] == first + 15 + (complementarity > 0) and active[-1], active
     jacobian = problem.residual_jacobian(z).copy()
     gradient = problem.gradient(z)
     np.testing.assert_allclose(2 * jacobian.T @ evaluation.residuals, gradient,
@@ -155,6 +161,43 @@ def test_residual_jacobian_matches_differences_and_the_gradient(settings, name, 
         h = 1e-6
         fd = (problem.residuals(z + h * direction) - problem.residuals(z - h * direction)) / (2 * h)
         np.testing.assert_allclose(jacobian @ direction, fd, rtol=2e-3, atol=2e-3 * np.abs(fd).max())
+
+
+def test_cccm_with_its_slack_eliminated_is_box_bounded_with_gamma_alone(settings):
+    # the paper's w5 s^2 with s >= phi gamma: at the optimum s = phi gamma, so the slack and the
+    # complementarity constraint give way to the running residual sqrt(w5 / S) phi_t gamma_t
+    paper, eliminated = every_term(settings, "cccm", True), every_term(settings, "cccm", True, 1.0e3)
+    assert [v.name for v in paper.variables] == ["gamma_N", "slack_Nm"] and paper.n_constraints == 40
+    assert [v.name for v in eliminated.variables] == ["gamma_N"] and eliminated.n_constraints == 0
+    z = interior_point(eliminated, seed=3, spread=0.3)
+    evaluation = eliminated.evaluate(z)
+    phi, gamma = eliminated.signed_distance(evaluation.sensordata), evaluation.sensordata[:, eliminated.gamma_row]
+    assert np.all(gamma > 0) and np.all(phi > 0)
+    running, _ = eliminated._running_residuals(evaluation.sensordata)
+    S = eliminated.steps_per_knot
+    np.testing.assert_allclose(running[:, -1] ** 2 * S / 1.0e3, (phi * gamma) ** 2, rtol=1e-12)
+    with pytest.raises(ValueError, match="vscm has no complementarity constraints to eliminate a slack of"):
+        every_term(settings, "vscm", True, 1.0e3)
+
+
+def test_ipopts_gauss_newton_hessian_is_the_residuals_curvature_by_differences(settings):
+    # what IPOPT gets with curvature gauss_newton, in its scaled variables x = z / scale: the lower
+    # triangle of obj_factor 2 (J S)'(J S), held here to differences of the residuals along directions
+    problem = every_term(settings, "cccm", True)
+    z = interior_point(problem, seed=11, spread=0.3)
+    callbacks = _Callbacks(problem, problem.scale, monitor=None)
+    rows, columns = callbacks.hessianstructure()
+    assert np.all(rows >= columns) and len(rows) == problem.size * (problem.size + 1) // 2
+    hessian = np.zeros((problem.size, problem.size))
+    hessian[rows, columns] = callbacks.hessian(z / problem.scale, np.ones(problem.n_constraints), 0.5)
+    hessian += np.tril(hessian, -1).T
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        direction = rng.normal(size=problem.size)  # in x
+        h = 1e-6
+        fd = (problem.residuals(z + h * direction * problem.scale)
+              - problem.residuals(z - h * direction * problem.scale)) / (2 * h)
+        assert direction @ hessian @ direction == pytest.approx(0.5 * 2 * fd @ fd, rel=5e-3)
 
 
 @pytest.mark.parametrize("virtual_force", [True, False])

@@ -1,15 +1,19 @@
 """Planning: physical success, the arm's limits, the contact models' own plans, cancellation,
 statuses, determinism and bad requests. Real MuJoCo, real iLQR and IPOPT."""
+import dataclasses
 import threading
+import time
 
 import numpy as np
 import pytest
 
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.ilqr import IlqrSolver
+from cito_ros.ipopt import IpoptSolver
 from cito_ros.planner import plan_push
 from cito_ros.results import PHASE_METRICS, IterationLog, Status
 from cito_ros.scene import start_configuration
+from cito_ros.solver import IterationMonitor, violation
 from cito_ros.stages import Executed
 from cito_ros.targets import draw_goals
 
@@ -33,6 +37,21 @@ def test_each_model_succeeds_physically_on_a_short_push(solved, settings, name):
     assert m.orientation_error_rad < settings.task.success_orientation_error_rad
     assert result.trajectory.finite and result.trajectory.warnings == {}
     assert np.all(result.trajectory.gamma_N == 0)  # the returned motion has no virtual force
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
+def test_each_model_succeeds_physically_on_the_papers_three_cases(settings, name):
+    for beta in (7, 6, 5):
+        result = plan_push(name, beta, settings=settings)
+        assert result.metrics.success, (beta, result.summary())
+
+
+def test_cccms_discovery_eliminates_its_slack_and_has_no_constraints(solved, settings):
+    # stages.discovery.cccm: slack_eliminated; its plan's knot variables are gamma alone
+    assert settings.stages.discovery.cccm == "slack_eliminated"
+    assert list(solved["cccm"].knot_variables) == ["gamma_N"]
+    assert solved["cccm"].metrics.planned_position_error_m < settings.task.planned_success_position_error_m
 
 
 @pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
@@ -178,6 +197,18 @@ def test_the_search_goes_on_past_a_start_whose_plan_the_controller_does_not_foll
     metrics = result.metrics
     assert metrics.success
     assert metrics.tracked_position_error_m - metrics.position_error_m <= settings.tracking.max_error_increase_m
+
+
+def test_ipopt_with_gauss_newton_curvature_lowers_the_cccm_cost_within_its_constraints(settings):
+    problem = build_problem(settings.with_overrides({"pipeline": "paper"}), PushRequest("cccm", 7)).problem
+    solver = IpoptSolver(dataclasses.replace(settings.solver, max_iter=10), "gauss_newton")
+    monitor = IterationMonitor(solver.settings, time.perf_counter(), 0, solver.violation_tolerance, None, None)
+    outcome = solver.solve(problem, problem.initial_guess, problem.lower, problem.upper, monitor)
+    end = problem.evaluate(outcome.z)
+    assert outcome.log and end.cost < problem.evaluate(problem.initial_guess).cost
+    assert violation(end, *problem.constraint_bounds()) <= solver.violation_tolerance
+    with pytest.raises(ValueError, match=r"IPOPT's curvature must be one of \['limited_memory', 'gauss_newton'\]"):
+        IpoptSolver(settings.solver, "exact")
 
 
 def test_ilqr_lowers_its_regularization_only_after_a_full_step(settings):
