@@ -259,7 +259,7 @@ IPOPT_CURVATURES = ("limited_memory", "gauss_newton")
 
 @dataclass(frozen=True)
 class StagesSettings:
-    solver: str = setting("solver of the box-bounded stages (SCM, VSCM, physical)",
+    solver: str = setting("solver of the box-bounded stages (SCM, VSCM, CCCM with its slack eliminated, physical)",
                           choices=("ilqr", "least_squares", "ipopt"))
     ipopt_curvature: str = setting("IPOPT's Hessian in the physical pipeline (CCCM's discovery, any stage with "
                                    "solver: ipopt): gauss_newton, from the linearizations, or limited_memory, the "

@@ -14,6 +14,8 @@ succeeds (two side by side when `stages.parallel`, see `solve_physical`):
    term, the plate-object gap squared from the start's fraction of the horizon on. The virtual force
    alone pushes from centimetres away and never along the face (it acts at the face centre, along
    its normal); the reach term brings the plate onto the object so that real contact pushes too.
+   CCCM's slack is eliminated (stages.discovery.cccm, StageCost.complementarity): box-bounded, its
+   discovery is solved like SCM's and VSCM's rather than by IPOPT with constraints.
 2. physical stages (`stages.physical`): the torques alone, the contact control held at 0 (the
    dynamics the plan is executed with), from the previous stage's torques, with a contact term
    that keeps the plate on the object from the discovery's touch-down to the end: a push, not a
