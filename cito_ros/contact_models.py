@@ -93,6 +93,8 @@ class ContactModel(abc.ABC):
     knot_variables: tuple[KnotVariable, ...] = ()
     #: Index in knot_variables of the variable that is the contact control, or None (fixed control).
     control_variable: ClassVar[int | None] = None
+    #: Index in knot_variables of a complementarity slack, or None (no complementarity constraints).
+    slack_variable: ClassVar[int | None] = None
 
     def contact_control(self, variables: np.ndarray) -> np.ndarray:
         """Contact control per knot from the (N, n_var) knot variables."""
@@ -206,6 +208,7 @@ class ComplementarityContactModel(ContactModel):
     description = "relaxed complementarity constraints, force per knot"
     control_name = "normal force gamma (N)"
     control_variable = 0
+    slack_variable = 1
     variable_names = ("gamma_N", "slack_Nm")
 
     def __init__(self, force_max: float, slack_max: float):

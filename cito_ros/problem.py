@@ -135,16 +135,12 @@ class PushProblem:
         self.n_joints = len(ARM_JOINTS)
         # CCCM's slack eliminated: gamma is its only knot variable, and it has no constraints
         self.slack_eliminated = cost.virtual_force and cost.complementarity > 0
-        if self.slack_eliminated and not self.contact_model.knot_constraints(
-                np.zeros(1), np.zeros((1, len(self.contact_model.knot_variables)))).names:
+        slack = self.contact_model.slack_variable
+        if self.slack_eliminated and slack is None:
             raise ValueError(f"{self.contact_model.name} has no complementarity constraints to eliminate a slack "
                              f"of; the complementarity weight is CCCM's")
-        if not cost.virtual_force:
-            self.variables = ()
-        elif self.slack_eliminated:
-            self.variables = (self.contact_model.knot_variables[self.contact_model.control_variable],)
-        else:
-            self.variables = self.contact_model.knot_variables
+        knot_variables = self.contact_model.knot_variables if cost.virtual_force else ()
+        self.variables = tuple(v for i, v in enumerate(knot_variables) if not (self.slack_eliminated and i == slack))
         self.width = self.n_joints + len(self.variables)
         self.size = self.n_knots * self.width
 
