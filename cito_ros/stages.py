@@ -320,7 +320,7 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
     base, limits = posed.problem, settings.limits
     T = base.n_steps
     reach = np.where(np.arange(T) >= int(fraction * T), 1.0 / T, 0.0)
-    eliminated = base.n_constraints and settings.stages.discovery.cccm == "slack_eliminated"
+    eliminated = base.contact_model.slack_variable is not None and settings.stages.discovery.cccm == "slack_eliminated"
     discovery = PushProblem(base.simulator, base.initial_state, base.task,
                             stage_cost(settings, base.weights, True, settings.stages.discovery.reach_weight, reach,
                                        limits.joint_speed_weight, limits.joint_position_weight,
