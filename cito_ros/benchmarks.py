@@ -78,37 +78,45 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
 def gradient_benchmark(repeats: int = 20, contact_model_name: str = "vscm") -> dict:
     """Time of the full gradient (cost over every decision variable; linearization, adjoint
     pass and terminal derivatives) against one bare native rollout of the same controls, at the
-    optimizer's start (zero torques) perturbed a little per repeat (no cache hits)."""
+    optimizer's start (zero torques) perturbed a little per repeat (no cache hits). Beside it, the
+    Gauss-Newton curvature from the gradient's linearization: iLQR's knot-wise expansion and the
+    residual Jacobian of least squares and IPOPT's gauss_newton Hessian."""
     settings = load_settings()
     posed = build_problem(settings, PushRequest(contact_model_name))
     problem, simulator, state = posed.problem, posed.simulator, posed.initial_state
     rng = np.random.default_rng(0)
     points = [np.clip(problem.initial_guess + 0.01 * rng.uniform(-1, 1, problem.size) * problem.scale,
                       problem.lower, problem.upper) for _ in range(repeats + 3)]
-    gradient_samples, linearize_samples = [], []
+    samples: dict[str, list[float]] = {"linearization": [], "gradient": [], "expansion": [], "jacobian": []}
     for i, z in enumerate(points):
         problem.evaluate(z)
-        start_time = time.perf_counter()
-        problem.linearize(z)
-        linearize_s = time.perf_counter() - start_time
-        start_time = time.perf_counter()
-        problem.derivatives(z, cached=False)
-        gradient_s = time.perf_counter() - start_time
+        times = {}
+        for name, compute in (("linearization", lambda: problem.linearize(z)),
+                              ("gradient", lambda: problem.derivatives(z, cached=False)),
+                              ("expansion", lambda: problem.knot_expansion(z)),     # the gradient's linearization
+                              ("jacobian", lambda: problem.residual_jacobian(z))):  # likewise
+            start_time = time.perf_counter()
+            compute()
+            times[name] = time.perf_counter() - start_time
         if i >= 3:  # warm-up
-            gradient_samples.append(gradient_s)
-            linearize_samples.append(linearize_s)
+            for name, value in times.items():
+                samples[name].append(value)
     controls = simulator.step_controls(problem.knot_controls(points[0]))[None]
     rollout_ms = median_ms(lambda: simulator.rollout_batch(state[None], controls), 10 * repeats, warmup=10)
-    gradient_ms = 1e3 * statistics.median(gradient_samples)
+    ms = {name: 1e3 * statistics.median(values) for name, values in samples.items()}
     return {
         "contact_model": problem.contact_model.name,
         "decision_variables": problem.size,
         "steps": simulator.n_steps,
         "threads": settings.gradient.threads,
-        "gradient_ms": gradient_ms,
-        "linearization_ms": 1e3 * statistics.median(linearize_samples),
+        "gradient_ms": ms["gradient"],
+        "linearization_ms": ms["linearization"],
+        "knot_expansion_ms": ms["expansion"],
+        "residual_jacobian_ms": ms["jacobian"],
         "rollout_ms": rollout_ms,
-        "ratio": gradient_ms / rollout_ms,
+        "ratio": ms["gradient"] / rollout_ms,
+        # an iLQR iteration's derivatives: the gradient's linearization and the knot-wise curvature from it
+        "gradient_and_curvature_ratio": (ms["gradient"] + ms["expansion"]) / rollout_ms,
         "repeats": repeats,
     }
 

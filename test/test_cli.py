@@ -1,5 +1,6 @@
 """The command-line tools, run as a user would (separate processes)."""
 import json
+import math
 import os
 import subprocess
 import sys
@@ -83,6 +84,16 @@ def test_plan_rejects_bad_options(args, message):
     result = run("cito-plan", *args)
     assert result.returncode == 2
     assert message in result.stderr
+
+
+def test_bench_gradient_times_the_curvature_beside_the_gradient():
+    result = run("cito-bench", "gradient", "--repeats", "2", "--json")
+    assert result.returncode == 0, result.stderr
+    timed = json.loads(result.stdout)
+    for key in ("gradient_ms", "linearization_ms", "knot_expansion_ms", "residual_jacobian_ms", "rollout_ms"):
+        assert math.isfinite(timed[key]) and timed[key] > 0.0, key
+    assert timed["gradient_and_curvature_ratio"] == pytest.approx(
+        (timed["gradient_ms"] + timed["knot_expansion_ms"]) / timed["rollout_ms"])
 
 
 def test_bench_speed_vs_error_writes_table_csv_and_plot(tmp_path):

@@ -119,7 +119,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"gradient of {result['decision_variables']} {result['contact_model']} variables: "
                   f"{result['gradient_ms']:.1f} ms (linearization {result['linearization_ms']:.1f} ms, "
                   f"{result['threads']} threads); rollout {result['rollout_ms']:.2f} ms; "
-                  f"ratio {result['ratio']:.1f} rollout-equivalents")
+                  f"ratio {result['ratio']:.1f} rollout-equivalents; Gauss-Newton curvature from its "
+                  f"linearization: knot-wise {result['knot_expansion_ms']:.1f} ms, residual Jacobian "
+                  f"{result['residual_jacobian_ms']:.1f} ms; gradient plus knot-wise curvature "
+                  f"{result['gradient_and_curvature_ratio']:.1f} rollout-equivalents")
     elif args.command == "solve-cost":
         if args.goals < 0:
             parser.error(f"--goals must be zero or more, got {args.goals}")
