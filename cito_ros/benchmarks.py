@@ -22,6 +22,7 @@ from cito_ros.results import PHASE_METRICS, phase_table
 from cito_ros.scene import Scene, start_configuration
 from cito_ros.settings import Settings, load_settings
 from cito_ros.simulator import Simulator
+from cito_ros.targets import PERTURBATIONS, stability, stability_table
 
 
 def median_ms(function: Callable[[], object], repeats: int, warmup: int = 3) -> float:
@@ -187,23 +188,39 @@ TABLES = (
 PAPER_CASES = tuple((model, beta) for model in PAPER_MODELS for beta in (5, 6, 7))
 
 
-def paper_case(model: str, beta: int, settings: Settings) -> dict:
-    """One of the nine cases: the plan's summary."""
-    return {"pipeline": settings.pipeline, **plan_push(model, beta, settings=settings).summary()}
+def paper_case(model: str, beta: int, settings: Settings, perturbation: str = "none") -> dict:
+    """One of the nine cases: the plan's summary. A perturbation (cito_ros.targets.PERTURBATIONS) moves
+    the default target along x or every start joint angle by a hair."""
+    if perturbation == "none":
+        result = plan_push(model, beta, settings=settings)
+    else:
+        target_shift, joint_shift = PERTURBATIONS[perturbation]
+        x, y = settings.scene.object.position_m
+        result = plan_push(model, start_q=start_configuration(beta) + joint_shift,
+                           target_position_m=np.array([x + settings.task.push_distance_m + target_shift, y]),
+                           settings=settings)
+    return {"pipeline": settings.pipeline, **result.summary(), "beta": beta, "perturbation": perturbation}
 
 
-def paper_benchmark(pipeline: str = "paper", *, workers: int | None = None, address: str | None = None,
-                    out: Path | None = None) -> list[dict]:
+def paper_benchmark(pipeline: str = "paper", *, perturb: bool = False, workers: int | None = None,
+                    address: str | None = None, out: Path | None = None) -> list[dict]:
     """Solve the paper's nine cases (3 contact models x beta 5, 6, 7) with a pipeline: 'paper' is
-    exactly the paper's problem (Tables I-IV), 'physical' the planner's own. A sweep (cito_ros.sweep)."""
+    exactly the paper's problem (Tables I-IV), 'physical' the planner's own; with `perturb`, each case
+    again under each perturbation of cito_ros.targets.PERTURBATIONS. A sweep (cito_ros.sweep)."""
     settings = sweep.settings_for(load_settings().with_overrides({"pipeline": pipeline}), workers)
-    jobs = [(f"{pipeline}-{model}-beta{beta}", paper_case, (model, beta, settings)) for model, beta in PAPER_CASES]
+    perturbations = PERTURBATIONS if perturb else ("none",)
+    jobs = [(f"{pipeline}-{model}-beta{beta}" + ("" if name == "none" else f"-{name}"), paper_case,
+             (model, beta, settings, name)) for name in perturbations for model, beta in PAPER_CASES]
     return sweep.run_sweep(jobs, workers=workers, address=address, out=out, label="paper cases")
 
 
 def paper_tables(results: list[dict]) -> str:
-    """Markdown: Tables I-IV of the paper side by side with ours, plus the executed error."""
+    """Markdown: Tables I-IV of the paper side by side with ours, plus the executed error, and how the
+    perturbed cases' verdicts and errors compare (when there are any)."""
     results, failed = sweep.split_failures(results)
+    results = [{"perturbation": "none", **r} for r in results]  # records resumed from before --perturb
+    perturbed = stability(results, "beta")
+    results = [r for r in results if r["perturbation"] == "none"]
     by_case = {(r["contact_model"], int(r["beta"])): r for r in results}
     lines = []
     for number, title, key, unit, digits in TABLES:
@@ -226,6 +243,8 @@ def paper_tables(results: list[dict]) -> str:
         "", f"Median solve time over the {len(results)} cases: {statistics.median(r['solve_time_s'] for r in results):.2f} s", "",
         "Where the solve time went:", "",
         phase_table({model.upper(): [r for r in results if r["contact_model"] == model] for model in PAPER_MODELS})]
+    if perturbed:
+        lines += ["", "The same requests with a hair of change:", "", stability_table(perturbed)]
     lines += [f"- {r['key']}: failed: {r['error']}" for r in failed]
     return "\n".join(lines)
 
@@ -237,13 +256,13 @@ def write_paper_outputs(results: list[dict], out_dir: Path) -> list[Path]:
     table = out_dir / "paper_tables.csv"
     with open(table, "w", newline="") as stream:
         writer = csv.writer(stream)
-        writer.writerow(["contact_model", "beta", "initial_distance_m", "status", "success", "planned_success",
-                         "iterations", "max_joint_speed_ratio"]
+        writer.writerow(["contact_model", "beta", "perturbation", "initial_distance_m", "status", "success",
+                         "planned_success", "iterations", "max_joint_speed_ratio"]
                         + [f"{key}{suffix}" for _, _, key, _, _ in TABLES for suffix in ("", "_paper")])
         for r in sweep.split_failures(results)[0]:
             beta = int(r["beta"])
-            row = [r["contact_model"], beta, r["initial_distance_m"], r["status"], r["success"], r["planned_success"],
-                   r["iterations"], r["max_joint_speed_ratio"]]
+            row = [r["contact_model"], beta, r.get("perturbation", "none"), r["initial_distance_m"], r["status"],
+                   r["success"], r["planned_success"], r["iterations"], r["max_joint_speed_ratio"]]
             for _, _, key, _, _ in TABLES:
                 paper = PAPER.get(key, {}).get(beta)
                 row += [r[key], "" if paper is None else paper[PAPER_MODELS.index(r["contact_model"])]]

@@ -94,15 +94,15 @@ def _percentile(values: list[float], q: float) -> float | None:
     return float(np.percentile(values, q)) if values else None
 
 
-def stability(records: list[dict[str, Any]]) -> dict[str, Any]:
+def stability(records: list[dict[str, Any]], request: str = "goal") -> dict[str, Any]:
     """Per model and perturbation: how often the verdict matched the unperturbed plan's, and how far the
-    executed errors moved."""
-    base = {(r["goal"], r["contact_model"]): r for r in records if r["perturbation"] == "none"}
+    executed errors moved. `request` names the field that tells the requests apart."""
+    base = {(r[request], r["contact_model"]): r for r in records if r["perturbation"] == "none"}
     out: dict[str, Any] = {}
     for r in records:
-        if r["perturbation"] == "none" or (r["goal"], r["contact_model"]) not in base:
+        if r["perturbation"] == "none" or (r[request], r["contact_model"]) not in base:
             continue
-        b = base[(r["goal"], r["contact_model"])]
+        b = base[(r[request], r["contact_model"])]
         entry = out.setdefault(r["contact_model"], {}).setdefault(r["perturbation"], {"pairs": 0, "same_verdict": 0,
                                                                                      "within_1cm": 0, "max_change_m": 0.0})
         change = abs(r["position_error_m"] - b["position_error_m"])
@@ -168,18 +168,24 @@ def markdown(summary: dict[str, Any]) -> str:
                      f"{'-' if close is None else f'{close:.0%}'} | {m['max_joint_speed_ratio']:.2f} | "
                      f"{t['median']:.2f} / {t['p90']:.2f} / {t['max']:.2f} | {it['median']:.0f} / {it['p90']:.0f} |")
     if summary["stability"]:
-        lines += ["", "| model | perturbation | same verdict | executed error within 1 cm | largest change (cm) |",
-                  "|---|---|---|---|---|"]
-        for model, by in summary["stability"].items():
-            for name, s in by.items():
-                lines.append(f"| {model.upper()} | {name} | {s['same_verdict']}/{s['pairs']} | "
-                             f"{s['within_1cm']}/{s['pairs']} | {100 * s['max_change_m']:.2f} |")
+        lines += ["", stability_table(summary["stability"])]
     lines += ["", "Where the solve time went (cito_ros.results.PHASE_METRICS):", "", summary["phases"]]
     for key, error in summary["failures"]:
         lines.append(f"- {key}: failed: {error}")
     lines.append(f"Draws refused by the planner's checks and drawn again: {summary['refused_draws']}"
                  + (f" (e.g. {summary['refused_reasons'][0]})" if summary["refused_reasons"] else ""))
     return "\n".join(lines) + "\n"
+
+
+def stability_table(by_model: dict[str, Any]) -> str:
+    """Markdown of `stability`."""
+    lines = ["| model | perturbation | same verdict | executed error within 1 cm | largest change (cm) |",
+             "|---|---|---|---|---|"]
+    for model, by in by_model.items():
+        for name, s in by.items():
+            lines.append(f"| {model.upper()} | {name} | {s['same_verdict']}/{s['pairs']} | "
+                         f"{s['within_1cm']}/{s['pairs']} | {100 * s['max_change_m']:.2f} |")
+    return "\n".join(lines)
 
 
 def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: Path) -> list[Path]:

@@ -6,10 +6,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from cito_ros import studies
+from cito_ros.builder import PushRequest, build_problem
 from cito_ros.planner import plan_push
 from cito_ros.results import METRIC_NAMES
+from cito_ros.settings import SceneConfig
 
 BIN = Path(sys.executable).parent
 
@@ -148,3 +152,14 @@ def test_the_main_job_cancelled_returns_the_best_plan_so_far(tmp_path):
     bags = [p for p in tmp_path.iterdir()]
     assert len(bags) == 1 and f"bag                {bags[0]}" in result.stdout
     assert (bags[0] / "metadata.yaml").is_file()
+
+
+def test_every_speed_vs_error_case_can_be_posed_in_every_variants_scene(settings):
+    # a case the planner refuses would enter the study's medians as a 0 s solve
+    for variant in studies.VARIANTS:
+        for case in studies.SWEEP_CASES:
+            scene = SceneConfig.load(variant.scene or case.scene)
+            x, y = scene.object.position_m
+            build_problem(settings, PushRequest("scm", case.beta, target_position_m=np.array([x + case.push[0],
+                                                                                             y + case.push[1]]),
+                                                target_yaw_rad=case.push[2], scene=variant.scene or case.scene))

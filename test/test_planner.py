@@ -7,6 +7,7 @@ import time
 import numpy as np
 import pytest
 
+from cito_ros import benchmarks
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.ilqr import IlqrSolver
 from cito_ros.ipopt import IpoptSolver
@@ -15,7 +16,7 @@ from cito_ros.results import PHASE_METRICS, IterationLog, Status
 from cito_ros.scene import start_configuration
 from cito_ros.solver import IterationMonitor, violation
 from cito_ros.stages import Executed
-from cito_ros.targets import draw_goals
+from cito_ros.targets import PERTURBATIONS, draw_goals, stability
 
 
 SHORT_PUSH_M = [1.09, 0.0]  # the cube pushed 10 cm along +x from the paper's closest start (beta = 7)
@@ -52,12 +53,18 @@ def test_each_model_succeeds_physically_on_the_papers_three_cases(settings, name
 def test_a_hair_of_change_in_the_request_keeps_the_verdict_on_a_papers_case(settings, beta):
     # the target moved by 1e-9 m, or every start joint by 1e-9 rad: the same verdict (CCCM, the fastest
     # model; README "Tiny changes" gives all three and how far the executed errors move)
-    x, y = settings.scene.object.position_m
-    target = np.array([x + settings.task.push_distance_m, y])
-    verdicts = [plan_push("cccm", start_q=start_configuration(beta) + joint_shift,
-                          target_position_m=target + [target_shift, 0.0], settings=settings).metrics.success
-                for target_shift, joint_shift in ((0.0, 0.0), (1e-9, 0.0), (0.0, 1e-9))]
+    verdicts = [benchmarks.paper_case("cccm", beta, settings, name)["success"] for name in PERTURBATIONS]
     assert verdicts == [True, True, True]
+
+
+def test_the_paper_benchmark_pairs_each_perturbed_case_with_its_own(settings):
+    # the pairing, not the plans: one start, one iteration per stage
+    capped = settings.with_overrides({"solver.max_iter": 1, "stages.starts": [0.5], "stages.horizon_scales": [1.0]})
+    records = [benchmarks.paper_case("scm", 7, capped, name) for name in PERTURBATIONS]
+    assert [r["perturbation"] for r in records] == list(PERTURBATIONS) and {r["beta"] for r in records} == {7}
+    pairs = stability(records, "beta")["scm"]
+    assert set(pairs) == set(PERTURBATIONS) - {"none"} and all(p["pairs"] == 1 for p in pairs.values())
+    assert "| SCM | target x +1e-9 m | " in benchmarks.paper_tables(records)
 
 
 def test_cccms_discovery_eliminates_its_slack_and_has_no_constraints(solved, settings):

@@ -3,7 +3,7 @@
     cito-bench rollout [--json]                   native vs Python-oracle rollout speed
     cito-bench gradient [--json]                  full-gradient time in rollout-equivalents
     cito-bench solve-cost [--goals N] [--json]             solve time in rollout-equivalents (one process)
-    cito-bench paper [--pipeline P] [--json] [--out DIR]   the paper's nine cases, Tables I-IV
+    cito-bench paper [--pipeline P] [--perturb] [--json] [--out DIR]   the paper's nine cases, Tables I-IV
     cito-bench targets [--n 50] [--seed S] [--models M ...] [--perturb K] [--json] [--out DIR]   random pushes
     cito-bench speed-vs-error [--out DIR]         solver effort against error, with a plot
     cito-bench hard [--json] [--out DIR]          cases that stress the numerics
@@ -72,7 +72,10 @@ def main(argv: list[str] | None = None) -> int:
                        help="paper: exactly the paper's problem (Tables I-IV); physical: the planner's own")
     paper.add_argument("--out", type=Path, default=Path("out/paper"),
                        help="the Markdown and CSV tables, and each finished case as it arrives (a rerun skips those)")
-    paper.add_argument("--json", action="store_true", help="print the list of nine result objects")
+    paper.add_argument("--json", action="store_true", help="print the list of result objects")
+    paper.add_argument("--perturb", action="store_true",
+                       help="each case again with the target moved 1e-9 m along x and with every start joint "
+                            "moved 1e-9 rad: same verdict, executed error within 1 cm?")
     add_sweep_options(paper)
     targets = commands.add_parser("targets", help="seeded random pushes, judged by their execution")
     targets.add_argument("--n", type=positive_int, default=50, help="goals")
@@ -139,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
             print("median share of the solve: " + ", ".join(
                 f"{name.removesuffix('_time_s')} {share:.0%}" for name, share in result["phase_share_median"].items()))
     elif args.command == "paper":
-        results = benchmarks.paper_benchmark(args.pipeline, workers=args.workers, address=args.address, out=args.out)
+        results = benchmarks.paper_benchmark(args.pipeline, perturb=args.perturb, workers=args.workers,
+                                             address=args.address, out=args.out)
         paths = benchmarks.write_paper_outputs(results, args.out)
         if args.json:
             print(json.dumps(results))
