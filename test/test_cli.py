@@ -158,8 +158,8 @@ def test_every_speed_vs_error_case_can_be_posed_in_every_variants_scene(settings
     # a case the planner refuses would enter the study's medians as a 0 s solve
     for variant in studies.VARIANTS:
         for case in studies.SWEEP_CASES:
-            scene = SceneConfig.load(variant.scene or case.scene)
-            x, y = scene.object.position_m
-            build_problem(settings, PushRequest("scm", case.beta, target_position_m=np.array([x + case.push[0],
-                                                                                             y + case.push[1]]),
-                                                target_yaw_rad=case.push[2], scene=variant.scene or case.scene))
+            scene = variant.scene or case.scene
+            x, y = SceneConfig.load(scene).object.position_m
+            target = np.array([x + case.push[0], y + case.push[1]])
+            build_problem(settings, PushRequest("scm", case.beta, target_position_m=target,
+                                                target_yaw_rad=case.push[2], scene=scene))
