@@ -22,7 +22,7 @@ from cito_ros.results import PHASE_METRICS, phase_table
 from cito_ros.scene import Scene, start_configuration
 from cito_ros.settings import Settings, load_settings
 from cito_ros.simulator import Simulator
-from cito_ros.targets import PERTURBATIONS, stability, stability_table
+from cito_ros.targets import PERTURBATIONS, plan_perturbed, stability, stability_table
 
 
 def median_ms(function: Callable[[], object], repeats: int, warmup: int = 3) -> float:
@@ -191,14 +191,11 @@ PAPER_CASES = tuple((model, beta) for model in PAPER_MODELS for beta in (5, 6, 7
 def paper_case(model: str, beta: int, settings: Settings, perturbation: str = "none") -> dict:
     """One of the nine cases: the plan's summary. A perturbation (cito_ros.targets.PERTURBATIONS) moves
     the default target along x or every start joint angle by a hair."""
-    if perturbation == "none":
+    if perturbation == "none":  # the default target, as the paper's tables have always been planned
         result = plan_push(model, beta, settings=settings)
     else:
-        target_shift, joint_shift = PERTURBATIONS[perturbation]
         x, y = settings.scene.object.position_m
-        result = plan_push(model, start_q=start_configuration(beta) + joint_shift,
-                           target_position_m=np.array([x + settings.task.push_distance_m + target_shift, y]),
-                           settings=settings)
+        result = plan_perturbed(model, beta, (x + settings.task.push_distance_m, y), 0.0, settings, perturbation)
     return {"pipeline": settings.pipeline, **result.summary(), "beta": beta, "perturbation": perturbation}
 
 

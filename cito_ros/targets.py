@@ -20,7 +20,7 @@ import numpy as np
 from cito_ros.builder import make_task
 from cito_ros.contact_models import contact_model
 from cito_ros.planner import plan_push
-from cito_ros.results import phase_table
+from cito_ros.results import PlanResult, phase_table
 from cito_ros.scene import Scene, start_configuration
 from cito_ros.settings import Settings, load_settings
 
@@ -66,13 +66,20 @@ def draw_goals(n: int, seed: int, settings: Settings | None = None) -> tuple[lis
 PERTURBATIONS = {"none": (0.0, 0.0), "target x +1e-9 m": (1e-9, 0.0), "start q +1e-9 rad": (0.0, 1e-9)}
 
 
-def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "none") -> dict[str, Any]:
-    """One goal with one model: the plan's summary with the goal's description. A perturbation moves
-    the target along x or every start joint angle by a hair (PERTURBATIONS)."""
+def plan_perturbed(model: str, beta: float, target_position_m, target_yaw_rad: float, settings: Settings,
+                   perturbation: str) -> PlanResult:
+    """The push from q0(beta) to (x, y, yaw) with a perturbation (PERTURBATIONS): the target moved along x
+    or every start joint angle moved by a hair."""
     target_shift, joint_shift = PERTURBATIONS[perturbation]
-    target = np.array(goal.target_position_m) + np.array([target_shift, 0.0])
-    result = plan_push(model, start_q=start_configuration(goal.beta) + joint_shift, target_position_m=target,
-                       target_yaw_rad=goal.target_yaw_rad, settings=settings)
+    return plan_push(model, start_q=start_configuration(beta) + joint_shift,
+                     target_position_m=np.asarray(target_position_m, dtype=float) + np.array([target_shift, 0.0]),
+                     target_yaw_rad=target_yaw_rad, settings=settings)
+
+
+def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "none") -> dict[str, Any]:
+    """One goal with one model: the plan's summary with the goal's description, under a perturbation
+    (plan_perturbed)."""
+    result = plan_perturbed(model, goal.beta, goal.target_position_m, goal.target_yaw_rad, settings, perturbation)
     summary = {key: value for key, value in result.summary().items() if key not in ("stages", "derivatives")}
     summary["beta"] = goal.beta
     return {"goal": goal.index, "push_m": goal.push_m, "direction_rad": goal.direction_rad,
