@@ -96,6 +96,7 @@ class Scene:
         self.object_geom_id = m.geom(OBJECT_GEOM).id
         self.object_body_id = m.body(OBJECT_BODY).id
         self.object_half_size = m.geom_size[self.object_geom_id].copy()
+        self.plate_radius_m, _, self.plate_half_thickness_m = map(float, m.geom_size[m.geom(PLATE_GEOM).id])  # normal: +z
         # The object candidate in the object box frame (constant: both sit on the object body).
         geom_to_body = self._geom_frame_in_body()
         self.object_candidate_in_geom = geom_to_body.T @ (m.site_pos[self.object_site_id] - m.geom_pos[self.object_geom_id])
@@ -365,6 +366,5 @@ def _push_reach(model_file: str, half_size: float, scene: Scene) -> float:
                 plate = data.site_xpos[scene.robot_site_id]
                 if abs(plate[2] - height) < 5e-3:
                     reach = max(reach, float(np.hypot(plate[0], plate[1])))
-        plate_radius = float(model.geom_size[model.geom(PLATE_GEOM).id][0])
-        _REACH_CACHE[key] = reach + plate_radius + half_size
+        _REACH_CACHE[key] = reach + scene.plate_radius_m + half_size
     return _REACH_CACHE[key]

@@ -254,6 +254,34 @@ class PhysicalStages:
                                                            self.only_if_beyond_limits))
 
 
+@dataclass(frozen=True)
+class ScriptedSettings:
+    """The scripted push, the physical pipeline's first start (cito_ros.scripted)."""
+
+    enabled: bool = setting("try the scripted push before the discoveries")
+    approach_fraction: float = setting("fraction of the horizon the plate takes to get behind the object",
+                                       positive=True)
+    push_end_fraction: float = setting("fraction of the horizon where the push ends (then the plate holds)",
+                                       positive=True)
+    standoff_m: float = setting("gap between plate and object at the end of the approach (m)", minimum=0.0)
+    contact_height_m: float = setting("height of the plate centre above the object's centre (m)")
+    speed_fraction: float = setting("each joint's step within this fraction of its velocity limit", positive=True)
+    joint_margin_rad: float = setting("joints kept this far inside their ranges (rad)", minimum=0.0)
+    orientation_weight: float = setting("weight of the plate normal's direction against the plate position (m/rad)",
+                                        minimum=0.0)
+    posture_gain: float = setting("pull towards the start posture in the null space, per step", minimum=0.0)
+    joint_weights: tuple[float, ...] = setting("cost of moving each joint in the least squares (7)", positive=True)
+    damping: float = setting("damping of the least squares (m^2)", positive=True)
+    ik_iterations: int = setting("least-squares iterations per simulation step", minimum=1)
+
+    def check(self, path: str) -> None:
+        if not self.approach_fraction < self.push_end_fraction <= 1.0:
+            raise ValueError(f"{path}: approach_fraction < push_end_fraction <= 1 is needed, got "
+                             f"{self.approach_fraction} and {self.push_end_fraction}")
+        if len(self.joint_weights) != 7:
+            raise ValueError(f"{path}.joint_weights must have one entry per arm joint (7), got {len(self.joint_weights)}")
+
+
 IPOPT_CURVATURES = ("limited_memory", "gauss_newton")
 
 
@@ -269,6 +297,7 @@ class StagesSettings:
     horizon_scales: tuple[float, ...] = setting("the starts are solved at horizon_s times each of these in "
                                                 "turn", positive=True)
     parallel: bool = setting("solve the next start speculatively beside the current one (the same plan)")
+    scripted: ScriptedSettings = setting("the scripted push, the first start")
     discovery: DiscoverySettings = setting("the contact model's stage")
     physical: PhysicalStages = setting("the stages without the virtual force")
     touch_force_N: float = setting("a virtual force above this marks the discovery's touch-down", positive=True)

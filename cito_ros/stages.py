@@ -6,10 +6,15 @@ restarts: a solve that stops short of the task has usually stalled at a contact 
 gradient is no descent direction; IPOPT restarted from its last iterate (a fresh quasi-Newton model
 and barrier) leaves it.
 
-Physical pipeline: the contact model discovers contact, the plan that leaves is refined without the
-virtual force. For each of `stages.starts` at each of `stages.horizon_scales`, in that order, until one
-succeeds (two side by side when `stages.parallel`, see `solve_physical`):
+Physical pipeline: a scripted push, or the contact model where that does not do, discovers contact;
+the plan that leaves is refined without the virtual force. First the scripted start (when
+`stages.scripted.enabled`), then each of `stages.starts` at each of `stages.horizon_scales`, in that
+order, until one succeeds (two side by side when `stages.parallel`, see `solve_physical`):
 
+0. scripted start (cito_ros.scripted): instead of a discovery, the torques of a PD-tracked push that
+   touches the object by construction, straight into the physical stages (2.) with the contact term
+   from the script's first touch. Most pushes within the arm's quasi-static reach succeed from it in
+   a few iterations; the rest go on to the discoveries.
 1. discovery: the contact model's problem from zero torques, plus the arm's limits and a reach
    term, the plate-object gap squared from the start's fraction of the horizon on. The virtual force
    alone pushes from centimetres away and never along the face (it acts at the face centre, along
@@ -48,6 +53,7 @@ from cito_ros.ipopt import IpoptSolver
 from cito_ros.least_squares import LeastSquaresSolver
 from cito_ros.problem import PushProblem, StageCost
 from cito_ros.results import IterationLog, StageRecord, Status
+from cito_ros.scripted import scripted_torques
 from cito_ros.settings import Settings, TrackingSettings
 from cito_ros.solver import IterationMonitor, Solver, StageOutcome
 
@@ -243,9 +249,11 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     clock = _Clock(settings, iteration_callback)
     stages = settings.stages
     labelled = len(stages.starts) > 1
-    jobs = [(horizon_s, fraction, (f"horizon {horizon_s:g} s, " if len(stages.horizon_scales) > 1 else "")
-             + (f"start {i + 1}: " if labelled else ""))
-            for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
+    horizon_label = (lambda horizon_s: f"horizon {horizon_s:g} s, " if len(stages.horizon_scales) > 1 else "")
+    first_horizon_s = settings.round_horizons_s[0]
+    jobs = [(first_horizon_s, None, f"{horizon_label(first_horizon_s)}scripted: ")] if stages.scripted.enabled else []
+    jobs += [(horizon_s, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
+             for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
     width = 2 if stages.parallel and len(jobs) > 1 else 1
     abandoned = [threading.Event() for _ in jobs]
     results: dict[int, tuple] = {}
@@ -313,13 +321,15 @@ class _Stop:
         return any(event.is_set() for event in self.events)
 
 
-def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRequest, fraction: float,
+def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRequest, fraction: float | None,
                  prefix: str):
+    """One start: the discovery drawing the plate onto the object from `fraction` of the horizon on (None:
+    the scripted push, cito_ros.scripted, instead of a discovery), then the physical stages."""
     began = time.perf_counter()
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
     T = base.n_steps
-    reach = np.where(np.arange(T) >= int(fraction * T), 1.0 / T, 0.0)
+    reach = np.where(np.arange(T) >= int((fraction or 0.0) * T), 1.0 / T, 0.0)
     eliminated = base.contact_model.slack_variable is not None and settings.stages.discovery.cccm == "slack_eliminated"
     discovery = PushProblem(base.simulator, base.initial_state, base.task,
                             stage_cost(settings, base.weights, True, settings.stages.discovery.reach_weight, reach,
@@ -327,16 +337,22 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
                                        base.weights.w5 if eliminated else 0.0),
                             base.derivative_settings, base.position_scale_min_m)
     executor = physical_twin(discovery, discovery.cost)
-    setup_s = time.perf_counter() - began
     run = _Run(clock, prefix, stop, settings.stages.ipopt_curvature)
-    stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
-                                discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
-    planned_z = stage.z
-    best = (executed.rank(settings), discovery.split(stage.z)[0], stage.status)
-    began = time.perf_counter()
-    touch = touch_profile(discovery, planned_z, settings.stages.touch_force_N)
-    setup_s += time.perf_counter() - began
-    torques = best[1]
+    best = None
+    if fraction is None:
+        torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
+        touch = touch_profile(executor, executor.with_torques(torques), settings.stages.touch_force_N)
+        setup_s = time.perf_counter() - began
+    else:
+        setup_s = time.perf_counter() - began
+        stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
+                                    discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
+        planned_z = stage.z
+        best = (executed.rank(settings), discovery.split(stage.z)[0], stage.status)
+        began = time.perf_counter()
+        touch = touch_profile(discovery, planned_z, settings.stages.touch_force_N)
+        setup_s += time.perf_counter() - began
+        torques = best[1]
     for index, spec in enumerate(settings.stages.physical):
         if run.interrupted:
             break
@@ -347,11 +363,13 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
         stage, result = run.stage(problem, settings.stages.solver, problem.with_torques(torques),
                                     problem.lower, problem.upper, f"physical {index + 1}", spec.max_iter, executor)
         torques = problem.split(stage.z)[0]
-        if result.rank(settings) < best[0]:
+        if best is None or result.rank(settings) < best[0]:
             best = (result.rank(settings), torques, stage.status)
         if result.reaches(settings):
             break
     rank, chosen, status = best
+    if fraction is None:  # no discovery: the plan under the contact model is the returned torques
+        planned_z = discovery.with_torques(chosen)
     return rank, Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
                          tuple(run.records), clock.elapsed(), setup_s)
 

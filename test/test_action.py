@@ -79,7 +79,7 @@ def user(tmp_path_factory):
 def test_a_goal_gets_feedback_and_a_successful_result(user):
     client, _ = user
     client.feedback.clear()
-    handle = client.send(model="scm")
+    handle = client.send(**Q0_BETA_5_GOAL)  # the scripted start iterates, then discoveries
     assert handle.accepted
     answer = client.result(handle)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
@@ -164,7 +164,7 @@ def test_a_parameter_change_applies_to_the_next_plan_and_bad_values_are_refused(
         (_, planned), = read_with_mcap(Path(result.bag_path))["/cito/plan_request"]
         assert planned.contact_model == "cccm"
         assert client.set_parameter("solver.time_limit_s", 0.5)[0]
-        handle = client.send(model="scm")
+        handle = client.send(**{**Q0_BETA_5_GOAL, "model": "scm"})
         result = client.result(handle).result
         assert result.metrics.status == "time_limit" and result.metrics.solve_time_s < 5.0
     finally:

@@ -13,8 +13,8 @@ from cito_ros.settings import load_settings
 from cito_ros.stages import Outcome, physical_twin
 
 CASES = load_cases()
-# the first two starts at one horizon: these tests are about statuses and numbers, not success, and the
-# further starts of a missed push (cito_ros.stages.solve_physical) would only repeat them
+# the scripted start and the first two discoveries at one horizon: these tests are about statuses and numbers,
+# not success, and the further starts of a missed push (cito_ros.stages.solve_physical) would only repeat them
 TWO_STARTS = load_settings().with_overrides({"stages.horizon_scales": [1.0], "stages.starts": [0.5, 0.3]})
 STATUSES = {s.value for s in Status} | {"invalid_request"}
 EXPECTED = {"far_0.40m", "far_0.50m", "lateral_+0.15m", "lateral_-0.15m", "yaw_30deg", "yaw_45deg", "heavy_2kg",

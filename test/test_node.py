@@ -173,7 +173,7 @@ def test_a_plan_for_each_contact_model(plans, model):
     assert response.success, response.message
     assert response.status == PlanPush.Response.STATUS_SUCCEEDED
     m = response.metrics
-    assert m.success and m.position_error_m < 0.02 and m.iterations > 0 and m.solve_time_s > 0
+    assert m.success and m.position_error_m < 0.02 and m.solve_time_s > 0
     assert m.max_joint_speed_ratio <= 1.05
     assert len(response.trajectory.points) == steps(response) + 1 and len(response.contact_forces) == steps(response)
     assert response.trajectory.joint_names == JOINTS
@@ -365,7 +365,7 @@ def test_sigterm_during_a_solve(tmp_path):
         assert done.success
         c.spin_for(0.5)
         c.received["/cito/progress"].clear()
-        future = c.call_async(request("vscm", start=None))  # the long beta = 5 VSCM solve
+        future = c.call_async(request("vscm", start=None, x=1.24))  # the main job: the long beta = 5 VSCM solve
         deadline = time.monotonic() + 60
         while len(c.received["/cito/progress"]) < 3 and time.monotonic() < deadline:
             c.spin_for(0.05)

@@ -24,8 +24,16 @@ SHORT_PUSH_M = [1.09, 0.0]  # the cube pushed 10 cm along +x from the paper's cl
 
 @pytest.fixture(scope="module")
 def solved(settings):
-    """One plan per contact model for the short push."""
+    """One plan per contact model for the short push (the scripted start's, refined)."""
     return {name: plan_push(name, 7, target_position_m=SHORT_PUSH_M, settings=settings)
+            for name in ("cccm", "scm", "vscm")}
+
+
+@pytest.fixture(scope="module")
+def discovered(settings):
+    """The same push planned without the scripted start: each contact model's discovery, refined."""
+    without_script = settings.with_overrides({"stages.scripted.enabled": False})
+    return {name: plan_push(name, 7, target_position_m=SHORT_PUSH_M, settings=without_script)
             for name in ("cccm", "scm", "vscm")}
 
 
@@ -38,6 +46,14 @@ def test_each_model_succeeds_physically_on_a_short_push(solved, settings, name):
     assert m.orientation_error_rad < settings.task.success_orientation_error_rad
     assert result.trajectory.finite and result.trajectory.warnings == {}
     assert np.all(result.trajectory.gamma_N == 0)  # the returned motion has no virtual force
+    assert all("scripted: " in stage.name for stage in result.stages)  # no discovery was needed
+
+
+@pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
+def test_each_models_discovery_succeeds_physically_on_a_short_push(discovered, name):
+    result = discovered[name]
+    assert result.metrics.success, result.summary()
+    assert not any("scripted" in stage.name for stage in result.stages)
 
 
 @pytest.mark.slow
@@ -67,11 +83,11 @@ def test_the_paper_benchmark_pairs_each_perturbed_case_with_its_own(settings):
     assert "| SCM | target x +1e-9 m | " in benchmarks.paper_tables(records)
 
 
-def test_cccms_discovery_eliminates_its_slack_and_has_no_constraints(solved, settings):
+def test_cccms_discovery_eliminates_its_slack_and_has_no_constraints(discovered, settings):
     # stages.discovery.cccm: slack_eliminated; its plan's knot variables are gamma alone
     assert settings.stages.discovery.cccm == "slack_eliminated"
-    assert list(solved["cccm"].knot_variables) == ["gamma_N"]
-    assert solved["cccm"].metrics.planned_position_error_m < settings.task.planned_success_position_error_m
+    assert list(discovered["cccm"].knot_variables) == ["gamma_N"]
+    assert discovered["cccm"].metrics.planned_position_error_m < settings.task.planned_success_position_error_m
 
 
 @pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
@@ -96,19 +112,19 @@ def test_cccm_constraints_hold_in_the_papers_plan(settings):
     assert np.all(phi * gamma - slack <= tolerance)
 
 
-def test_vscm_stiffness_stays_in_bounds(solved):
-    k = solved["vscm"].knot_variables["stiffness_N"]
+def test_vscm_stiffness_stays_in_bounds(discovered):
+    k = discovered["vscm"].knot_variables["stiffness_N"]
     assert np.all(k >= 0) and np.all(k <= 100.0)
-    steps = len(solved["vscm"].planned.gamma_N) // len(k)
-    np.testing.assert_array_equal(solved["vscm"].planned.stiffness_N, np.repeat(k, steps))
+    steps = len(discovered["vscm"].planned.gamma_N) // len(k)
+    np.testing.assert_array_equal(discovered["vscm"].planned.stiffness_N, np.repeat(k, steps))
 
 
-def test_scm_keeps_its_fixed_stiffness(solved):
-    np.testing.assert_array_equal(solved["scm"].knot_contact_control, np.full(20, 100.0))
+def test_scm_keeps_its_fixed_stiffness(discovered):
+    np.testing.assert_array_equal(discovered["scm"].knot_contact_control, np.full(20, 100.0))
 
 
-def test_result_metrics_are_those_of_the_execution(solved, scenes):
-    result = solved["vscm"]
+def test_result_metrics_are_those_of_the_execution(discovered, scenes):
+    result = discovered["vscm"]
     m = result.metrics
     final = result.trajectory.object_position_m[-1]
     assert m.position_error_m == pytest.approx(np.linalg.norm(final - result.target_position_m))
@@ -143,7 +159,7 @@ def test_iteration_callback_and_cancellation(settings):
 
     result = plan_push("vscm", 6, settings=settings, iteration_callback=callback, cancel=cancel)
     assert result.status is Status.CANCELLED
-    assert len(seen) <= 4 + len(settings.stages.starts)  # each start stops at its next iteration
+    assert len(seen) <= 4 + 1 + len(settings.stages.starts)  # each start (the scripted one too) stops at its next
     assert all(isinstance(e.cost, float) and e.elapsed_s >= 0 and e.stage for e in seen)
     assert result.trajectory.finite  # the best plan so far is returned, simulated
 
@@ -167,12 +183,13 @@ def test_same_case_twice_gives_identical_plans(settings):
 
 @pytest.mark.parametrize("max_iter", [100, 1])
 def test_starts_side_by_side_or_one_after_the_other_give_the_same_plan(settings, max_iter):
-    """Side by side, a later start is abandoned once an earlier one succeeds (max_iter 100: a start
-    before the last succeeds), and an early finish of a later start waits for the earlier ones
-    (max_iter 1: none succeeds, every start runs): the plan and its stages are those of the starts one
-    after the other."""
+    """Side by side, a later start is abandoned once an earlier one succeeds (max_iter 100, the short
+    push: a start before the last succeeds), and an early finish of a later start waits for the earlier
+    ones (max_iter 1, the paper's push: none succeeds, every start runs): the plan and its stages are
+    those of the starts one after the other."""
     one_horizon = {"solver.max_iter": max_iter, "stages.horizon_scales": [1.0]}
-    parallel, serial = (plan_push("scm", 7, target_position_m=SHORT_PUSH_M, settings=settings.with_overrides(
+    target = SHORT_PUSH_M if max_iter == 100 else None
+    parallel, serial = (plan_push("scm", 7, target_position_m=target, settings=settings.with_overrides(
         {**one_horizon, "stages.parallel": side_by_side})) for side_by_side in (True, False))
     assert np.array_equal(parallel.knot_torques_Nm, serial.knot_torques_Nm)
     assert [(s.name, s.status, s.iterations) for s in parallel.stages] == \
@@ -180,9 +197,9 @@ def test_starts_side_by_side_or_one_after_the_other_give_the_same_plan(settings,
     assert parallel.metrics.success == (max_iter == 100)
     starts = {s.name.split(":")[0] for s in serial.stages}
     if max_iter == 100:  # the starts after the successful one never ran
-        assert len(starts) < len(settings.stages.starts)
-    else:
-        assert len(starts) == len(settings.stages.starts)
+        assert len(starts) < 1 + len(settings.stages.starts)
+    else:  # the scripted start, then every discovery
+        assert len(starts) == 1 + len(settings.stages.starts)
 
 
 def test_a_start_ends_once_its_executed_plan_is_at_the_goal_with_margin(solved, settings):
@@ -301,10 +318,12 @@ class TestReach:
 
 @pytest.mark.parametrize("pipeline", ["physical", "paper"])
 def test_phase_times_add_up_to_the_solve_time(settings, pipeline):
-    """Every stage's four phases are its wall clock; with the starts one after the other, the setup and
-    the stages' phases are the solve time (within 10 %)."""
-    result = plan_push("vscm", 7, target_position_m=SHORT_PUSH_M, settings=settings.with_overrides(
-        {"pipeline": pipeline, "stages.parallel": False, "solver.max_iter": 8}))
+    """Every stage's four phases are its wall clock; with the starts one after the other, the setup (the
+    scripted push's too) and the stages' phases are the solve time (within 10 %). The paper's push: the
+    scripted start iterates, then a discovery."""
+    result = plan_push("vscm", 7, settings=settings.with_overrides(
+        {"pipeline": pipeline, "stages.parallel": False, "solver.max_iter": 8, "stages.starts": [0.5],
+         "stages.horizon_scales": [1.0]}))
     m = result.metrics
     phases = [getattr(m, name) for name in PHASE_METRICS]
     assert all(value >= 0 for value in phases) and m.rollout_time_s > 0 and m.linearization_time_s > 0

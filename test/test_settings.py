@@ -69,6 +69,8 @@ def test_settings_round_trip_through_the_parameter_tree(settings):
     ({"stages.starts": [0.3, 1.2]}, r"stages.starts must be one or more fractions of the horizon in \[0, 1\)"),
     ({"stages.starts": [0.3, -1.0]}, r"stages.starts\[1\] must be non-negative"),
     ({"stages.solver": "newton"}, "stages.solver must be one of"),
+    ({"stages.scripted.push_end_fraction": 0.3}, r"stages.scripted: approach_fraction < push_end_fraction <= 1"),
+    ({"stages.scripted.joint_weights": [1.0, 5.0]}, r"stages.scripted.joint_weights must have one entry per arm joint"),
     ({"stages.physical.max_iter": []}, "stages.physical must list at least one stage"),
     ({"stages.physical.max_iter": [30]}, "stages.physical must list at least one stage, with one entry per stage"),
     ({"tracking.kp": [1.0, 2.0]}, "tracking.kp and tracking.kd must have one gain per arm joint"),

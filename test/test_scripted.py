@@ -1,0 +1,58 @@
+"""The scripted push, the physical pipeline's first start (cito_ros.scripted). Real MuJoCo."""
+import numpy as np
+import pytest
+
+from cito_ros.builder import PushRequest, build_problem
+from cito_ros.scripted import joint_path, plate_path, scripted_torques
+from cito_ros.stages import physical_twin
+
+
+def executor(settings, beta, target, yaw=0.0):
+    problem = build_problem(settings, PushRequest("vscm", beta, target_position_m=np.array(target),
+                                                  target_yaw_rad=yaw)).problem
+    return physical_twin(problem, problem.cost)
+
+
+@pytest.mark.parametrize("beta, target, yaw", [(7, [1.09, 0.0], 0.0), (5, [1.10, 0.06], 0.3), (6, [1.05, -0.05], 0.0)])
+def test_the_scripted_torques_push_the_object_most_of_the_way_to_the_goal(settings, beta, target, yaw):
+    # executed open loop without the virtual force, as the physical stages start from them
+    problem = executor(settings, beta, target, yaw)
+    evaluation = problem.evaluate(problem.with_torques(scripted_torques(problem, settings.stages.scripted,
+                                                                        settings.tracking)))
+    scene = problem.scene
+    start, end = scene.object_qpos(problem.initial_state)[:2], scene.object_qpos(evaluation.states[-1])[:2]
+    assert evaluation.finite and not evaluation.warnings
+    assert np.linalg.norm(end - target) < 0.5 * np.linalg.norm(np.asarray(target) - start)
+
+
+def test_the_plate_path_ends_with_the_objects_face_at_the_goal(settings):
+    script = settings.stages.scripted
+    problem = executor(settings, 6, [1.10, 0.05])
+    path, along = plate_path(problem, script)
+    scene = problem.scene
+    assert along == pytest.approx(np.r_[np.array([0.11, 0.05]) / np.hypot(0.11, 0.05), 0.0])
+    face_to_plate = scene.object_half_size[0] + scene.plate_half_thickness_m
+    lift = np.array([0.0, 0.0, script.contact_height_m])
+    assert path[-1] == pytest.approx(problem.task.target_position_m - face_to_plate * along + lift)
+    at_approach = int(round(script.approach_fraction * (len(path) - 1)))
+    start = scene.object_qpos(problem.initial_state)[:3]
+    assert path[at_approach] == pytest.approx(start - (face_to_plate + script.standoff_m) * along + lift, abs=1e-3)
+
+
+def test_the_joint_path_keeps_within_the_speed_fraction_and_inside_the_ranges(settings):
+    script = settings.stages.scripted
+    problem = executor(settings, 5, [1.24, 0.0])  # the paper's push: its end is out of reach, the joints lag
+    q = joint_path(problem, script).q
+    scene, dt = problem.scene, problem.simulator.timestep_s
+    assert np.all(np.abs(np.diff(q, axis=0)) <= script.speed_fraction * scene.velocity_limit * dt + 1e-12)
+    low, high = scene.joint_range.T
+    assert np.all(q[1:] >= low + script.joint_margin_rad - 1e-12) and np.all(q[1:] <= high - script.joint_margin_rad + 1e-12)
+
+
+def test_a_target_on_the_objects_start_is_scripted_as_a_touch(settings):
+    problem = executor(settings, 6, [0.99, 0.0], 0.4)  # a turn in place
+    evaluation = problem.evaluate(problem.with_torques(scripted_torques(problem, settings.stages.scripted,
+                                                                        settings.tracking)))
+    scene = problem.scene
+    moved = scene.object_qpos(evaluation.states[-1])[:2] - scene.object_qpos(problem.initial_state)[:2]
+    assert evaluation.finite and np.linalg.norm(moved) < 0.02
