@@ -247,6 +247,8 @@ class PhysicalStages:
         if len(lengths) != 1 or 0 in lengths:
             raise ValueError(f"{path} must list at least one stage, with one entry per stage in each of "
                              f"{[f.name for f in dataclasses.fields(self)]}")
+        if self.only_if_beyond_limits[0]:
+            raise ValueError(f"{path}.only_if_beyond_limits[0] must be false: the first stage refines every start")
 
     def __iter__(self):
         return (PhysicalStage(*values) for values in zip(self.contact_weight, self.joint_speed_weight,

@@ -7,6 +7,8 @@ motors the planner uses (cito.compensated_motor). The gains are the settings' `t
 """
 from __future__ import annotations
 
+from typing import Protocol
+
 import mujoco
 import numpy as np
 
@@ -16,9 +18,17 @@ from cito_ros.simulator import Simulator, Trajectory
 FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
-def track(simulator: Simulator, initial_state: np.ndarray, reference: Trajectory,
+class JointReference(Protocol):
+    """What the controller tracks: joint positions and velocities (n_steps + 1, 7) at every state (a
+    Trajectory, or the scripted start's cito_ros.scripted.JointPath)."""
+
+    q: np.ndarray
+    qdot: np.ndarray
+
+
+def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
           gains: TrackingSettings) -> Trajectory:
-    """Execute `reference` (its q and qdot at every state) under PD control from initial_state."""
+    """Execute `reference` under PD control from initial_state."""
     scene, model = simulator.scene, simulator.model
     kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
     data = mujoco.MjData(model)

@@ -73,6 +73,8 @@ def test_settings_round_trip_through_the_parameter_tree(settings):
     ({"stages.scripted.joint_weights": [1.0, 5.0]}, r"stages.scripted.joint_weights must have one entry per arm joint"),
     ({"stages.physical.max_iter": []}, "stages.physical must list at least one stage"),
     ({"stages.physical.max_iter": [30]}, "stages.physical must list at least one stage, with one entry per stage"),
+    ({"stages.physical.only_if_beyond_limits": [True, False, True, True]},
+     r"stages.physical.only_if_beyond_limits\[0\] must be false"),
     ({"tracking.kp": [1.0, 2.0]}, "tracking.kp and tracking.kd must have one gain per arm joint"),
     ({"paper.control_period_s": 0.3}, "paper.horizon_s 1.0 must be a positive whole number of control periods"),
     ({"pipeline": "fast"}, "pipeline must be one of"),
