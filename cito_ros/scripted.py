@@ -43,14 +43,20 @@ def _minimum_jerk(s: float) -> float:
     return s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
+def _at_start(problem) -> mujoco.MjData:
+    """An mjData at the problem's initial state (the object where the request put it), its kinematics done."""
+    data = mujoco.MjData(problem.scene.model)
+    mujoco.mj_setState(problem.scene.model, data, problem.initial_state, FULL_PHYSICS)
+    mujoco.mj_kinematics(problem.scene.model, data)
+    return data
+
+
 def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarray]:
     """(n_steps + 1, 3) plate-centre positions, world frame, and the push's unit direction: from where
     the plate starts to standoff_m behind the object's face along the push, then through to where that
     face ends with the object at the target, both at contact_height_m above the object's centre."""
     scene, simulator = problem.simulator.scene, problem.simulator
-    data = mujoco.MjData(scene.model)
-    mujoco.mj_setState(scene.model, data, problem.initial_state, FULL_PHYSICS)
-    mujoco.mj_kinematics(scene.model, data)
+    data = _at_start(problem)
     plate = data.site_xpos[scene.robot_site_id].copy()
     start = scene.object_qpos(problem.initial_state)[:3]
     push = problem.task.target_position_m[:2] - start[:2]
@@ -81,9 +87,7 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
     scene = problem.simulator.scene
     model = scene.model
     path, along = plate_path(problem, script)
-    data = mujoco.MjData(model)
-    mujoco.mj_setState(model, data, problem.initial_state, FULL_PHYSICS)
-    mujoco.mj_kinematics(model, data)
+    data = _at_start(problem)
     site, dofs, qadr = scene.robot_site_id, scene.arm_dof_adr, scene.arm_qpos_adr
     normal0 = data.site_xmat[site].reshape(3, 3)[:, 2].copy()
     dt = model.opt.timestep
@@ -91,6 +95,7 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
     low, high = scene.joint_range[:, 0] + script.joint_margin_rad, scene.joint_range[:, 1] - script.joint_margin_rad
     inverse_weights = 1.0 / np.asarray(script.joint_weights)
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    damping, identity = script.damping * np.eye(6), np.eye(len(dofs))
     T = len(path) - 1
     q = np.empty((T + 1, len(qadr)))
     q[0] = data.qpos[qadr]
@@ -106,9 +111,9 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
                           script.orientation_weight * np.cross(data.site_xmat[site].reshape(3, 3)[:, 2], normal)]
             J = np.vstack([jacp[:, dofs], script.orientation_weight * jacr[:, dofs]])
             JW = J * inverse_weights
-            system = JW @ J.T + script.damping * np.eye(6)
+            system = JW @ J.T + damping
             step = JW.T @ np.linalg.solve(system, error)
-            null_space = np.eye(len(dofs)) - JW.T @ np.linalg.solve(system, J)
+            null_space = identity - JW.T @ np.linalg.solve(system, J)
             step += null_space @ (script.posture_gain * (q[0] - data.qpos[qadr]))
             data.qpos[qadr] = np.clip(np.clip(data.qpos[qadr] + step, q[t - 1] - step_max, q[t - 1] + step_max),
                                       low, high)
