@@ -125,13 +125,16 @@ class Variant:
 
 VARIANTS = (
     Variant("default", {}),
+    Variant("no script", {"stages.scripted.enabled": False}),
     Variant("max_iter 10", {"solver.max_iter": 10, "stages.discovery.max_iter": 10}),
     Variant("one start", {"stages.starts": [0.3]}),
     Variant("least squares", {"stages.solver": "least_squares"}),
     Variant("ipopt", {"stages.solver": "ipopt"}),
     Variant("ipopt gauss-newton", {"stages.solver": "ipopt", "stages.ipopt_curvature": "gauss_newton"}),
     Variant("paper problem", {"pipeline": "paper"}),
-    Variant("forward differences", {"gradient.method": "forward_differences"}),
+    # iLQR's stages take the knot-wise expansion, not the gradient: the knot-restart differences change
+    # only the IPOPT and least-squares paths, so they are compared on the paper's problem
+    Variant("paper problem, forward differences", {"pipeline": "paper", "gradient.method": "forward_differences"}),
     Variant("timestep 2 ms", {}, scene="fine_step"),
     Variant("N = 10", {}, knots=10),
     Variant("N = 40", {}, knots=40),

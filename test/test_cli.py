@@ -157,6 +157,7 @@ def test_the_main_job_cancelled_returns_the_best_plan_so_far(tmp_path):
 def test_every_speed_vs_error_case_can_be_posed_in_every_variants_scene(settings):
     # a case the planner refuses would enter the study's medians as a 0 s solve
     for variant in studies.VARIANTS:
+        settings.with_overrides(variant.overrides)  # a misspelt parameter fails here, not an hour into the study
         for case in studies.SWEEP_CASES:
             scene = variant.scene or case.scene
             x, y = SceneConfig.load(scene).object.position_m
