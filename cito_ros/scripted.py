@@ -26,8 +26,7 @@ import numpy as np
 
 from cito_ros import tracking
 from cito_ros.settings import ScriptedSettings, TrackingSettings
-
-FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
+from cito_ros.simulator import FULL_PHYSICS
 
 
 @dataclass(frozen=True)

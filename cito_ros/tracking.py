@@ -13,9 +13,7 @@ import mujoco
 import numpy as np
 
 from cito_ros.settings import TrackingSettings
-from cito_ros.simulator import Simulator, Trajectory
-
-FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
+from cito_ros.simulator import FULL_PHYSICS, Simulator, Trajectory
 
 
 class JointReference(Protocol):
