@@ -29,6 +29,11 @@ BETA_RANGE = (4.0, 7.0)
 PUSH_RANGE_M = (0.05, 0.35)
 DIRECTION_RANGE_RAD = math.radians(35.0)
 YAW_RANGE_RAD = 0.5
+# the band at the edge of the push reach (cito_ros.scene.Scene.push_reach_m) that the report sets apart:
+# that reach counts the plate's rim at the top of the cube's face at full stretch, and a push that keeps
+# the plate on the face ends short of it, so goals in the band need the cube to slide or be lifted the
+# rest of the way (README: the random pushes)
+NEAR_REACH_BAND_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -39,6 +44,11 @@ class Goal:
     target_yaw_rad: float
     push_m: float
     direction_rad: float
+
+
+def push_reach_m(settings: Settings) -> float:
+    """The scene's push reach (Scene.push_reach_m): the farthest a goal may be from the arm base."""
+    return Scene(contact_model("vscm", settings.contact_models), settings.scene).push_reach_m()
 
 
 def draw_goals(n: int, seed: int, settings: Settings | None = None) -> tuple[list[Goal], list[str]]:
@@ -120,9 +130,33 @@ def stability(records: list[dict[str, Any]], request: str = "goal") -> dict[str,
     return out
 
 
-def report(records: list[dict[str, Any]], refused: list[str]) -> dict[str, Any]:
+def by_reach(records: list[dict[str, Any]], reach_m: float, band_m: float = NEAR_REACH_BAND_M) -> dict[str, Any]:
+    """Per model, the goals more than band_m inside the push reach and those within band_m of it: their
+    successes, solve times, and the perturbed pairs that kept the verdict and moved at most 1 cm."""
+    def band(record) -> str:
+        return "near" if np.hypot(*record["target_position_m"][:2]) > reach_m - band_m else "inside"
+
+    base = {(r["goal"], r["contact_model"]): r for r in records if r["perturbation"] == "none"}
+    out: dict[str, Any] = {}
+    for model in dict.fromkeys(r["contact_model"] for r in base.values()):
+        for name in ("inside", "near"):
+            rows = [r for (_, m), r in base.items() if m == model and band(r) == name]
+            pairs = [(r, base[(r["goal"], model)]) for r in records if r["contact_model"] == model
+                     and r["perturbation"] != "none" and (r["goal"], model) in base and band(r) == name]
+            times = [r["solve_time_s"] for r in rows]
+            out.setdefault(model, {})[name] = {
+                "goals": len(rows), "successes": sum(r["success"] for r in rows),
+                "solve_time_s": {"median": statistics.median(times) if times else None, "p90": _percentile(times, 90)},
+                "perturbed_pairs": len(pairs),
+                "pairs_stable": sum(p["success"] == b["success"]
+                                    and abs(p["position_error_m"] - b["position_error_m"]) <= 0.01 for p, b in pairs)}
+    return {"reach_m": reach_m, "band_m": band_m, "models": out}
+
+
+def report(records: list[dict[str, Any]], refused: list[str], reach_m: float | None = None) -> dict[str, Any]:
     """Per model: success rates, error and time statistics of the unperturbed plans, and the stability
-    of the perturbed ones. A failed solve (an exception, a lost worker) counts as no success."""
+    of the perturbed ones; with reach_m, the same split by the goal's distance to that reach (by_reach).
+    A failed solve (an exception, a lost worker) counts as no success."""
     failed = [r for r in records if r.get("failed")]
     records = [r for r in records if not r.get("failed")]
     per_model = {}
@@ -153,7 +187,8 @@ def report(records: list[dict[str, Any]], refused: list[str]) -> dict[str, Any]:
                            "p90": _percentile([r["iterations"] for r in rows], 90)},
         }
     phases = phase_table({model.upper(): [r for r in plain if r["contact_model"] == model] for model in per_model})
-    return {"models": per_model, "stability": stability(records), "phases": phases, "refused_draws": len(refused),
+    return {"models": per_model, "stability": stability(records), "phases": phases,
+            "by_reach": None if reach_m is None else by_reach(records, reach_m), "refused_draws": len(refused),
             "refused_reasons": sorted(set(refused))[:5], "failures": [(r["key"], r["error"]) for r in failed]}
 
 
@@ -176,6 +211,8 @@ def markdown(summary: dict[str, Any]) -> str:
                      f"{t['median']:.2f} / {t['p90']:.2f} / {t['max']:.2f} | {it['median']:.0f} / {it['p90']:.0f} |")
     if summary["stability"]:
         lines += ["", stability_table(summary["stability"])]
+    if summary.get("by_reach"):
+        lines += ["", reach_table(summary["by_reach"])]
     lines += ["", "Where the solve time went (cito_ros.results.PHASE_METRICS):", "", summary["phases"]]
     for key, error in summary["failures"]:
         lines.append(f"- {key}: failed: {error}")
@@ -195,6 +232,25 @@ def stability_table(by_model: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def reach_table(split: dict[str, Any]) -> str:
+    """Markdown of `by_reach`."""
+    reach, band = split["reach_m"], split["band_m"]
+    lines = [f"By the goal's distance from the arm base, against the push reach of {reach:.3f} m:", "",
+             f"| model | goals ≤ {reach - band:.3f} m: success | solve median / p90 (s) | perturbed pairs stable | "
+             f"goals {reach - band:.3f}–{reach:.3f} m: success | solve median / p90 (s) | perturbed pairs stable |",
+             "|---|---|---|---|---|---|---|"]
+
+    def cells(entry) -> str:
+        t = entry["solve_time_s"]
+        times = "-" if t["median"] is None else f"{t['median']:.2f} / {t['p90']:.2f}"
+        return (f"{entry['successes']}/{entry['goals']} | {times} | "
+                f"{entry['pairs_stable']}/{entry['perturbed_pairs']}")
+
+    for model, entries in split["models"].items():
+        lines.append(f"| {model.upper()} | {cells(entries['inside'])} | {cells(entries['near'])} |")
+    return "\n".join(lines)
+
+
 def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: Path) -> list[Path]:
     import json
 
@@ -207,12 +263,13 @@ def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: P
         writer.writerows(records)
     paths[1].write_text(markdown(summary))
     paths[2].write_text(json.dumps({"summary": summary, "runs": records}, indent=1))
-    plot(records, paths[3])
+    plot(records, paths[3], summary["by_reach"]["reach_m"] if summary.get("by_reach") else None)
     return paths
 
 
-def plot(records: list[dict[str, Any]], path: Path) -> Path:
-    """Executed error against solve time per model, successes filled; success rate in the legend."""
+def plot(records: list[dict[str, Any]], path: Path, reach_m: float | None = None) -> Path:
+    """Executed error against solve time per model, successes filled, success rate in the legend; and,
+    with reach_m, against the goal's distance from the arm base, the push reach and its band marked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -220,23 +277,33 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path:
 
     colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
     records = [r for r in records if not r.get("failed") and r["perturbation"] == "none"]
-    figure, axis = plt.subplots(figsize=(7.5, 5))
-    for model in dict.fromkeys(r["contact_model"] for r in records):
-        rows = [r for r in records if r["contact_model"] == model]
-        rate = sum(r["success"] for r in rows) / len(rows)
-        for success in (True, False):
-            chosen = [r for r in rows if r["success"] == success]
-            axis.scatter([r["solve_time_s"] for r in chosen], [max(100 * r["position_error_m"], 1e-3) for r in chosen],
-                         color=colors.get(model, "gray"), facecolors=colors.get(model, "gray") if success else "none",
-                         s=30, label=f"{model.upper()} ({rate:.0%} success)" if success else None)
-    axis.axhline(2.0, color="gray", linewidth=0.8, linestyle="--")
-    axis.set_xscale("log")
-    axis.set_yscale("log")
-    axis.set_xlabel("solve time (s)")
-    axis.set_ylabel("executed position error (cm), virtual force off")
-    axis.set_title("random pushes: error executed on the robot against solve time (filled: success)")
-    axis.legend(fontsize=8)
-    axis.grid(True, which="both", alpha=0.3)
+    panels = [("solve time (s)", lambda r: r["solve_time_s"], "log")]
+    if reach_m is not None:
+        panels.append(("goal's distance from the arm base (m)", lambda r: float(np.hypot(*r["target_position_m"][:2])),
+                       "linear"))
+    figure, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 5), squeeze=False)
+    for axis, (label, x_of, xscale) in zip(axes[0], panels):
+        for model in dict.fromkeys(r["contact_model"] for r in records):
+            rows = [r for r in records if r["contact_model"] == model]
+            rate = sum(r["success"] for r in rows) / len(rows)
+            for success in (True, False):
+                chosen = [r for r in rows if r["success"] == success]
+                axis.scatter([x_of(r) for r in chosen], [max(100 * r["position_error_m"], 1e-3) for r in chosen],
+                             color=colors.get(model, "gray"), facecolors=colors.get(model, "gray") if success else "none",
+                             s=30, label=f"{model.upper()} ({rate:.0%} success)" if success else None)
+        axis.axhline(2.0, color="gray", linewidth=0.8, linestyle="--")
+        axis.set_xscale(xscale)
+        axis.set_yscale("log")
+        axis.set_xlabel(label)
+        axis.set_ylabel("executed position error (cm), virtual force off")
+        axis.legend(fontsize=8)
+        axis.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_title("random pushes: error executed on the robot against solve time (filled: success)")
+    if reach_m is not None:
+        axes[0][1].axvline(reach_m, color="black", linewidth=1.0)
+        axes[0][1].axvspan(reach_m - NEAR_REACH_BAND_M, reach_m, color="gray", alpha=0.15)
+        axes[0][1].set_title(f"against the goal's distance: push reach {reach_m:.3f} m, its last "
+                             f"{100 * NEAR_REACH_BAND_M:.0f} cm shaded")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)

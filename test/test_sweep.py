@@ -8,6 +8,8 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
 from cito_ros import sweep, targets
 from cito_ros.results import PHASE_METRICS
 from cito_ros.settings import load_settings
@@ -33,8 +35,34 @@ def test_a_sweep_gives_the_same_records_on_ray_and_in_process():
     assert not any(r.get("failed") for r in on_ray + in_process)
     # the threaded in-process solve and the single-threaded Ray task plan the same bits
     assert [without_timings(r) for r in on_ray] == [without_timings(r) for r in in_process]
-    report = targets.report(on_ray, [])
+    report = targets.report(on_ray, [], targets.push_reach_m(settings))
     assert set(report["models"]) == {"scm", "vscm"} and report["models"]["scm"]["goals"] == 4
+    for model, split in report["by_reach"]["models"].items():
+        assert split["inside"]["goals"] + split["near"]["goals"] == 4
+        assert split["inside"]["successes"] + split["near"]["successes"] == \
+            sum(r["success"] for r in on_ray if r["contact_model"] == model)
+    assert "against the push reach of" in targets.markdown(report)
+
+
+def test_the_report_sets_apart_the_goals_within_the_band_at_the_push_reach():
+    settings = load_settings()
+    reach = targets.push_reach_m(settings)
+    goals, _ = targets.draw_goals(50, seed=0, settings=settings)
+    distance = {g.index: float(np.hypot(*g.target_position_m)) for g in goals}
+    assert max(distance.values()) <= reach  # the draws the planner refuses are drawn again
+
+    def record(goal, perturbation, success, error_m):
+        return {"goal": goal.index, "contact_model": "scm", "perturbation": perturbation, "success": success,
+                "position_error_m": error_m, "solve_time_s": 1.0, "target_position_m": [*goal.target_position_m, 0.1]}
+
+    # a near goal whose perturbed twin flips, an inside goal whose twin moves 5 mm
+    near = next(g for g in goals if distance[g.index] > reach - targets.NEAR_REACH_BAND_M)
+    inside = next(g for g in goals if distance[g.index] <= reach - targets.NEAR_REACH_BAND_M)
+    records = [record(near, "none", True, 0.015), record(near, "target x +1e-9 m", False, 0.03),
+               record(inside, "none", True, 0.002), record(inside, "target x +1e-9 m", True, 0.007)]
+    split = targets.by_reach(records, reach)["models"]["scm"]
+    assert (split["near"]["goals"], split["near"]["successes"], split["near"]["pairs_stable"]) == (1, 1, 0)
+    assert (split["inside"]["goals"], split["inside"]["pairs_stable"], split["inside"]["perturbed_pairs"]) == (1, 1, 1)
 
 
 def _kill_one_ray_task(killed: list[int], deadline_s: float = 120.0) -> None:

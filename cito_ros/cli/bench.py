@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         jobs = targets_module.jobs(goals, args.models, sweep.settings_for(settings, args.workers), args.perturb)
         records = sweep.run_sweep(jobs, workers=args.workers, address=args.address, out=args.out / f"seed{args.seed}",
                                   label="targets")
-        summary = targets_module.report(records, refused)
+        summary = targets_module.report(records, refused, targets_module.push_reach_m(settings))
         paths = targets_module.write_outputs(records, summary, args.out)
         if args.json:
             print(json.dumps({"summary": summary, "runs": records}))
