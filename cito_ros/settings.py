@@ -257,8 +257,26 @@ class PhysicalStages:
 
 
 @dataclass(frozen=True)
+class ScriptVariants:
+    """Further scripted starts, one entry of each list per start, in order: the scripted push again with
+    these values, after the first script and before the discoveries."""
+
+    contact_height_m: tuple[float, ...] = setting("the variant's contact_height_m (m)")
+    push_end_fraction: tuple[float, ...] = setting("the variant's push_end_fraction", positive=True)
+    horizon_scale: tuple[float, ...] = setting("the variant's horizon, in horizon_s", positive=True)
+
+    def check(self, path: str) -> None:
+        if len({len(getattr(self, f.name)) for f in dataclasses.fields(self)}) != 1:
+            raise ValueError(f"{path} must give every variant one entry in each of "
+                             f"{[f.name for f in dataclasses.fields(self)]}")
+
+    def __iter__(self):
+        return iter(zip(self.contact_height_m, self.push_end_fraction, self.horizon_scale))
+
+
+@dataclass(frozen=True)
 class ScriptedSettings:
-    """The scripted push, the physical pipeline's first start (cito_ros.scripted)."""
+    """The scripted push, the physical pipeline's first start (cito_ros.scripted), and its variants."""
 
     enabled: bool = setting("try the scripted push before the discoveries")
     approach_fraction: float = setting("fraction of the horizon the plate takes to get behind the object",
@@ -275,11 +293,13 @@ class ScriptedSettings:
     joint_weights: tuple[float, ...] = setting("cost of moving each joint in the least squares (7)", positive=True)
     damping: float = setting("damping of the least squares (m^2)", positive=True)
     ik_iterations: int = setting("least-squares iterations per simulation step", minimum=1)
+    variants: ScriptVariants = setting("further scripted starts where the first misses")
 
     def check(self, path: str) -> None:
-        if not self.approach_fraction < self.push_end_fraction <= 1.0:
-            raise ValueError(f"{path}: approach_fraction < push_end_fraction <= 1 is needed, got "
-                             f"{self.approach_fraction} and {self.push_end_fraction}")
+        for push_end in (self.push_end_fraction, *self.variants.push_end_fraction):
+            if not self.approach_fraction < push_end <= 1.0:
+                raise ValueError(f"{path}: approach_fraction < push_end_fraction <= 1 is needed, got "
+                                 f"{self.approach_fraction} and {push_end}")
         if len(self.joint_weights) != 7:
             raise ValueError(f"{path}.joint_weights must have one entry per arm joint (7), got {len(self.joint_weights)}")
 
@@ -407,8 +427,11 @@ class Settings:
     @property
     def round_horizons_s(self) -> tuple[float, ...]:
         """The physical pipeline's horizon per stages.horizon_scales entry, in whole control periods."""
-        return tuple(max(round(self.horizon_s * scale / self.control_period_s), 1) * self.control_period_s
-                     for scale in self.stages.horizon_scales)
+        return tuple(self.round_horizon_s(scale) for scale in self.stages.horizon_scales)
+
+    def round_horizon_s(self, scale: float) -> float:
+        """horizon_s times scale, in whole control periods."""
+        return max(round(self.horizon_s * scale / self.control_period_s), 1) * self.control_period_s
 
     @property
     def horizon(self) -> tuple[float, float]:

@@ -7,14 +7,17 @@ gradient is no descent direction; IPOPT restarted from its last iterate (a fresh
 and barrier) leaves it.
 
 Physical pipeline: a scripted push, or the contact model where that does not do, discovers contact;
-the plan that leaves is refined without the virtual force. First the scripted start (when
-`stages.scripted.enabled`), then each of `stages.starts` at each of `stages.horizon_scales`, in that
-order, until one succeeds (two side by side when `stages.parallel`, see `solve_physical`):
+the plan that leaves is refined without the virtual force. First the scripted start and its variants
+(when `stages.scripted.enabled`), then each of `stages.starts` at each of `stages.horizon_scales`, in
+that order, until one succeeds (two side by side when `stages.parallel`, see `solve_physical`):
 
 0. scripted start (cito_ros.scripted): instead of a discovery, the torques of a PD-tracked push that
    touches the object by construction, straight into the physical stages (2.) with the contact term
    from the script's first touch. Most pushes within the arm's quasi-static reach succeed from it in
-   a few iterations; the rest go on to the discoveries.
+   a few iterations. Where it misses, its variants (`stages.scripted.variants`: another contact
+   height, an earlier end of the push, a longer horizon) follow, each a start of its own: near the
+   arm's push reach a few different pushes are cheaper tickets than the discoveries. The rest go on
+   to the discoveries.
 1. discovery: the contact model's problem from zero torques, plus the arm's limits and a reach
    term, the plate-object gap squared from the start's fraction of the horizon on. The virtual force
    alone pushes from centimetres away and never along the face (it acts at the face centre, along
@@ -251,8 +254,16 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     labelled = len(stages.starts) > 1
     horizon_label = (lambda horizon_s: f"horizon {horizon_s:g} s, " if len(stages.horizon_scales) > 1 else "")
     first_horizon_s = settings.round_horizons_s[0]
-    jobs = [(first_horizon_s, None, f"{horizon_label(first_horizon_s)}scripted: ")] if stages.scripted.enabled else []
-    jobs += [(horizon_s, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
+    # (settings overrides, discovery start fraction or None for a script, stage-name prefix)
+    jobs = []
+    if stages.scripted.enabled:
+        jobs.append(({"horizon_s": first_horizon_s}, None, f"{horizon_label(first_horizon_s)}scripted: "))
+        for i, (height_m, push_end, scale) in enumerate(stages.scripted.variants):
+            horizon_s = settings.round_horizon_s(scale)
+            jobs.append(({"horizon_s": horizon_s, "stages.scripted.contact_height_m": height_m,
+                          "stages.scripted.push_end_fraction": push_end}, None,
+                         f"{horizon_label(horizon_s)}scripted {i + 2}: "))
+    jobs += [({"horizon_s": horizon_s}, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
              for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
     width = 2 if stages.parallel and len(jobs) > 1 else 1
     abandoned = [threading.Event() for _ in jobs]
@@ -274,8 +285,8 @@ def solve_physical(settings: Settings, request: PushRequest, *,
         return True
 
     def solve(index: int):
-        horizon_s, fraction, prefix = jobs[index]
-        overrides = {"horizon_s": horizon_s, **({"gradient.threads": 1} if width > 1 else {})}
+        overrides, fraction, prefix = jobs[index]
+        overrides = {**overrides, **({"gradient.threads": 1} if width > 1 else {})}
         return _solve_start(clock, _Stop(cancel, abandoned[index]), settings.with_overrides(overrides), request,
                             fraction, prefix)
 

@@ -4,7 +4,9 @@ import pytest
 
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.scripted import joint_path, plate_path, scripted_torques
+from cito_ros.planner import plan_push
 from cito_ros.stages import physical_twin
+from cito_ros.targets import draw_goals
 
 
 def executor(settings, beta, target, yaw=0.0):
@@ -56,3 +58,16 @@ def test_a_target_on_the_objects_start_is_scripted_as_a_touch(settings):
     scene = problem.scene
     moved = scene.object_qpos(evaluation.states[-1])[:2] - scene.object_qpos(problem.initial_state)[:2]
     assert evaluation.finite and np.linalg.norm(moved) < 0.02
+
+
+def test_a_push_near_the_reach_the_first_script_misses_is_planned_by_a_variant_before_any_discovery(settings):
+    # goal 20 of `cito-bench targets` (1.202 m from the base, within 5 cm of the push reach): SCM's first
+    # script ends at the goal but a PD controller's execution of it does not; the variant with the plate
+    # 6 cm above the cube's centre succeeds (README: script variants)
+    goal = draw_goals(21, 0, settings)[0][20]
+    result = plan_push("scm", goal.beta, target_position_m=np.array(goal.target_position_m),
+                       target_yaw_rad=goal.target_yaw_rad, settings=settings)
+    names = [stage.name for stage in result.stages]
+    assert result.metrics.success
+    assert any("scripted:" in name for name in names) and names[-1].split(": ")[0].endswith("scripted 2")
+    assert not any("discovery" in name for name in names)
