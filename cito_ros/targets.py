@@ -13,7 +13,7 @@ import math
 import statistics
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
@@ -111,15 +111,26 @@ def _percentile(values: list[float], q: float) -> float | None:
     return float(np.percentile(values, q)) if values else None
 
 
+def perturbed_pairs(records: list[dict[str, Any]], request: str = "goal") -> Iterator[tuple[dict, dict]]:
+    """(perturbed record, its unperturbed one) for every perturbed record whose request (`request` names
+    the field that tells the requests apart) was also solved unperturbed with the same model."""
+    base = {(r[request], r["contact_model"]): r for r in records if r["perturbation"] == "none"}
+    for r in records:
+        if r["perturbation"] != "none" and (r[request], r["contact_model"]) in base:
+            yield r, base[(r[request], r["contact_model"])]
+
+
+def stable(perturbed: dict[str, Any], unperturbed: dict[str, Any]) -> bool:
+    """Item 5 on one pair: the same verdict, the executed errors within 1 cm."""
+    return perturbed["success"] == unperturbed["success"] and \
+        abs(perturbed["position_error_m"] - unperturbed["position_error_m"]) <= 0.01
+
+
 def stability(records: list[dict[str, Any]], request: str = "goal") -> dict[str, Any]:
     """Per model and perturbation: how often the verdict matched the unperturbed plan's, and how far the
     executed errors moved. `request` names the field that tells the requests apart."""
-    base = {(r[request], r["contact_model"]): r for r in records if r["perturbation"] == "none"}
     out: dict[str, Any] = {}
-    for r in records:
-        if r["perturbation"] == "none" or (r[request], r["contact_model"]) not in base:
-            continue
-        b = base[(r[request], r["contact_model"])]
+    for r, b in perturbed_pairs(records, request):
         entry = out.setdefault(r["contact_model"], {}).setdefault(r["perturbation"], {"pairs": 0, "same_verdict": 0,
                                                                                      "within_1cm": 0, "max_change_m": 0.0})
         change = abs(r["position_error_m"] - b["position_error_m"])
@@ -130,26 +141,29 @@ def stability(records: list[dict[str, Any]], request: str = "goal") -> dict[str,
     return out
 
 
+def goal_distance_m(record: dict[str, Any]) -> float:
+    """A record's goal distance from the arm base (horizontal; the base is the world origin)."""
+    return float(np.hypot(*record["target_position_m"][:2]))
+
+
 def by_reach(records: list[dict[str, Any]], reach_m: float, band_m: float = NEAR_REACH_BAND_M) -> dict[str, Any]:
     """Per model, the goals more than band_m inside the push reach and those within band_m of it: their
     successes, solve times, and the perturbed pairs that kept the verdict and moved at most 1 cm."""
     def band(record) -> str:
-        return "near" if np.hypot(*record["target_position_m"][:2]) > reach_m - band_m else "inside"
+        return "near" if goal_distance_m(record) > reach_m - band_m else "inside"
 
-    base = {(r["goal"], r["contact_model"]): r for r in records if r["perturbation"] == "none"}
+    plain = [r for r in records if r["perturbation"] == "none"]
+    pairs = list(perturbed_pairs(records))
     out: dict[str, Any] = {}
-    for model in dict.fromkeys(r["contact_model"] for r in base.values()):
+    for model in dict.fromkeys(r["contact_model"] for r in plain):
         for name in ("inside", "near"):
-            rows = [r for (_, m), r in base.items() if m == model and band(r) == name]
-            pairs = [(r, base[(r["goal"], model)]) for r in records if r["contact_model"] == model
-                     and r["perturbation"] != "none" and (r["goal"], model) in base and band(r) == name]
+            rows = [r for r in plain if r["contact_model"] == model and band(r) == name]
+            chosen = [(p, b) for p, b in pairs if p["contact_model"] == model and band(p) == name]
             times = [r["solve_time_s"] for r in rows]
             out.setdefault(model, {})[name] = {
                 "goals": len(rows), "successes": sum(r["success"] for r in rows),
                 "solve_time_s": {"median": statistics.median(times) if times else None, "p90": _percentile(times, 90)},
-                "perturbed_pairs": len(pairs),
-                "pairs_stable": sum(p["success"] == b["success"]
-                                    and abs(p["position_error_m"] - b["position_error_m"]) <= 0.01 for p, b in pairs)}
+                "perturbed_pairs": len(chosen), "pairs_stable": sum(stable(p, b) for p, b in chosen)}
     return {"reach_m": reach_m, "band_m": band_m, "models": out}
 
 
@@ -263,13 +277,14 @@ def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: P
         writer.writerows(records)
     paths[1].write_text(markdown(summary))
     paths[2].write_text(json.dumps({"summary": summary, "runs": records}, indent=1))
-    plot(records, paths[3], summary["by_reach"]["reach_m"] if summary.get("by_reach") else None)
+    plot(records, paths[3], summary.get("by_reach"))
     return paths
 
 
-def plot(records: list[dict[str, Any]], path: Path, reach_m: float | None = None) -> Path:
+def plot(records: list[dict[str, Any]], path: Path, split: dict[str, Any] | None = None) -> Path:
     """Executed error against solve time per model, successes filled, success rate in the legend; and,
-    with reach_m, against the goal's distance from the arm base, the push reach and its band marked."""
+    with a by_reach split, against the goal's distance from the arm base, the push reach and its band
+    marked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -278,9 +293,8 @@ def plot(records: list[dict[str, Any]], path: Path, reach_m: float | None = None
     colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
     records = [r for r in records if not r.get("failed") and r["perturbation"] == "none"]
     panels = [("solve time (s)", lambda r: r["solve_time_s"], "log")]
-    if reach_m is not None:
-        panels.append(("goal's distance from the arm base (m)", lambda r: float(np.hypot(*r["target_position_m"][:2])),
-                       "linear"))
+    if split is not None:
+        panels.append(("goal's distance from the arm base (m)", goal_distance_m, "linear"))
     figure, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 5), squeeze=False)
     for axis, (label, x_of, xscale) in zip(axes[0], panels):
         for model in dict.fromkeys(r["contact_model"] for r in records):
@@ -299,11 +313,12 @@ def plot(records: list[dict[str, Any]], path: Path, reach_m: float | None = None
         axis.legend(fontsize=8)
         axis.grid(True, which="both", alpha=0.3)
     axes[0][0].set_title("random pushes: error executed on the robot against solve time (filled: success)")
-    if reach_m is not None:
-        axes[0][1].axvline(reach_m, color="black", linewidth=1.0)
-        axes[0][1].axvspan(reach_m - NEAR_REACH_BAND_M, reach_m, color="gray", alpha=0.15)
-        axes[0][1].set_title(f"against the goal's distance: push reach {reach_m:.3f} m, its last "
-                             f"{100 * NEAR_REACH_BAND_M:.0f} cm shaded")
+    if split is not None:
+        reach, band = split["reach_m"], split["band_m"]
+        axes[0][1].axvline(reach, color="black", linewidth=1.0)
+        axes[0][1].axvspan(reach - band, reach, color="gray", alpha=0.15)
+        axes[0][1].set_title(f"against the goal's distance: push reach {reach:.3f} m, its last "
+                             f"{100 * band:.0f} cm shaded")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
