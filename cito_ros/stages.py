@@ -35,7 +35,8 @@ A stage without the virtual force ends as soon as its plan, executed, is at the 
 force, are a candidate; the plan returned is the first start's that succeeds and that a PD joint
 trajectory controller follows (its tracked execution within tracking.max_error_increase_m of the
 executed error), or else the best of all (within the arm's speed limits and ranges first, then at the
-goal, then followed, then closest to it).
+goal, then followed, then closest to it). A script's success short of the goal margin is the one
+exception: the scripts after it run too, and the best of them is returned.
 """
 from __future__ import annotations
 
@@ -244,7 +245,8 @@ def solve_physical(settings: Settings, request: PushRequest, *,
                    iteration_callback: Callable[[IterationLog], None] | None = None,
                    cancel: threading.Event | None = None) -> Outcome:
     """Every start at every horizon (stages.starts within stages.horizon_scales), in that order, until
-    one succeeds: the plan is the first success in that order, or the best executed plan of all.
+    one succeeds: the plan is the first success in that order (the best of the scripts where a script
+    succeeds short of the goal margin), or the best executed plan of all.
     Each start is a lottery ticket of a non-convex problem: about half the pushes succeed with the
     first and pay for one. With stages.parallel the next start runs beside the earliest unfinished
     one, on a thread of its own, and is abandoned when an earlier start succeeds: the threads change
@@ -266,13 +268,22 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     jobs += [({"horizon_s": horizon_s}, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
              for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
     width = 2 if stages.parallel and len(jobs) > 1 else 1
+    scripts = sum(1 for _, fraction, _ in jobs if fraction is None)
     abandoned = [threading.Event() for _ in jobs]
     results: dict[int, tuple] = {}
 
-    def settles(result) -> bool:
-        """Whether a start's result ends the search: a success, or an interruption."""
-        rank, outcome = result
-        return outcome.status.interrupted or Executed.succeeds(rank)
+    def settles(index: int) -> bool:
+        """Whether a finished start ends the search: an interruption; before the last script, a success
+        at the goal with the margin; from the last script on, a success of its own or of a script before
+        it. A script's success short of the margin lets the next scripts run, and the best is kept: at
+        the tolerance, which start's plan is returned flips with a hair of change in the request, and a
+        script costs a second or two (README: stability)."""
+        rank, reached, outcome = results[index]
+        if outcome.status.interrupted:
+            return True
+        if index + 1 < scripts:
+            return Executed.succeeds(rank) and reached
+        return any(Executed.succeeds(results[i][0]) for i in range(index + 1) if i in results)
 
     def decided() -> bool:
         """Whether the finished starts settle the plan: the first unfinished start comes after a start
@@ -280,7 +291,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
         for index in range(len(jobs)):
             if index not in results:
                 return False
-            if settles(results[index]):
+            if settles(index):
                 return True
         return True
 
@@ -299,8 +310,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
             submitted = 0
             while not decided():
                 # no start after a success is needed, whatever the earlier ones give
-                while len(running) < width and submitted < len(jobs) and \
-                        not any(Executed.succeeds(rank) for rank, _ in results.values()):
+                while len(running) < width and submitted < len(jobs) and not any(map(settles, results)):
                     running[pool.submit(solve, submitted)] = submitted
                     submitted += 1
                 finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
@@ -312,14 +322,14 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     ordered = []
     for index in sorted(results):
         ordered.append(results[index])
-        if settles(results[index]):
+        if settles(index):
             break
-    _, outcome = min(ordered, key=lambda result: result[0])
-    log = tuple(entry for _, result in ordered for entry in result.log)
-    records = tuple(record for _, result in ordered for record in result.stages)
-    interrupted = next((result.status for _, result in ordered if result.status.interrupted), None)
+    _, _, outcome = min(ordered, key=lambda result: result[0])
+    log = tuple(entry for _, _, result in ordered for entry in result.log)
+    records = tuple(record for _, _, result in ordered for record in result.stages)
+    interrupted = next((result.status for _, _, result in ordered if result.status.interrupted), None)
     return dataclasses.replace(outcome, log=log, stages=records, status=interrupted or outcome.status,
-                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in ordered))
+                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, _, result in ordered))
 
 
 class _Stop:
@@ -335,7 +345,8 @@ class _Stop:
 def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRequest, fraction: float | None,
                  prefix: str):
     """One start: the discovery drawing the plate onto the object from `fraction` of the horizon on (None:
-    the scripted push, cito_ros.scripted, instead of a discovery), then the physical stages."""
+    the scripted push, cito_ros.scripted, instead of a discovery), then the physical stages. Returns the
+    best plan's rank, whether it is at the goal with the margin (Executed.reaches) and the outcome."""
     began = time.perf_counter()
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
@@ -349,7 +360,7 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
                             base.derivative_settings, base.position_scale_min_m)
     executor = physical_twin(discovery, discovery.cost)
     run = _Run(clock, prefix, stop, settings.stages.ipopt_curvature)
-    best = None
+    best = None  # (rank, torques, status, executed)
     if fraction is None:
         torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
         touch = touch_profile(executor, executor.with_torques(torques), settings.stages.touch_force_N)
@@ -359,7 +370,7 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
         stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
                                     discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
         planned_z = stage.z
-        best = (executed.rank(settings), discovery.split(stage.z)[0], stage.status)
+        best = (executed.rank(settings), discovery.split(stage.z)[0], stage.status, executed)
         began = time.perf_counter()
         touch = touch_profile(discovery, planned_z, settings.stages.touch_force_N)
         setup_s += time.perf_counter() - began
@@ -375,13 +386,13 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
                                     problem.lower, problem.upper, f"physical {index + 1}", spec.max_iter, executor)
         torques = problem.split(stage.z)[0]
         if best is None or result.rank(settings) < best[0]:
-            best = (result.rank(settings), torques, stage.status)
+            best = (result.rank(settings), torques, stage.status, result)
         if result.reaches(settings):
             break
-    rank, chosen, status = best
+    rank, chosen, status, executed = best
     if fraction is None:  # no discovery: the plan under the contact model is the returned torques
         planned_z = discovery.with_torques(chosen)
-    return rank, Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
+    return rank, executed.reaches(settings), Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
                          tuple(run.records), clock.elapsed(), setup_s)
 
 

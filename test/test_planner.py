@@ -66,11 +66,14 @@ def test_each_model_succeeds_physically_on_the_papers_three_cases(settings, name
 
 @pytest.mark.slow
 @pytest.mark.parametrize("beta", [7, 6, 5])
-def test_a_hair_of_change_in_the_request_keeps_the_verdict_on_a_papers_case(settings, beta):
-    # the target moved by 1e-9 m, or every start joint by 1e-9 rad: the same verdict (CCCM, the fastest
-    # model; README "Tiny changes" gives all three and how far the executed errors move)
-    verdicts = [benchmarks.paper_case("cccm", beta, settings, name)["success"] for name in PERTURBATIONS]
-    assert verdicts == [True, True, True]
+def test_a_hair_of_change_in_the_request_keeps_the_verdict_and_the_error_on_a_papers_case(settings, beta):
+    # the target moved by 1e-9 m, or every start joint by 1e-9 rad: the same verdict and an executed error
+    # within 1 cm (CCCM, the fastest model; README "Tiny changes" gives all three). At beta = 6 the first
+    # script ends 1.45 cm off unperturbed, 1.98 cm with the target moved: the best of the scripts is returned
+    records = [benchmarks.paper_case("cccm", beta, settings, name) for name in PERTURBATIONS]
+    assert [record["success"] for record in records] == [True, True, True]
+    unperturbed = records[0]["position_error_m"]
+    assert all(abs(record["position_error_m"] - unperturbed) <= 0.01 for record in records[1:]), records
 
 
 def test_the_paper_benchmark_pairs_each_perturbed_case_with_its_own(settings):

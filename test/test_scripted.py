@@ -71,3 +71,17 @@ def test_a_push_near_the_reach_the_first_script_misses_is_planned_by_a_variant_b
     assert result.metrics.success
     assert any("scripted:" in name for name in names) and names[-1].split(": ")[0].endswith("scripted 2")
     assert not any("discovery" in name for name in names)
+
+
+def test_a_scripts_success_short_of_the_goal_margin_runs_the_other_scripts_and_then_ends_the_search(settings):
+    # goal 24 of `cito-bench targets` (1.228 m from the base): SCM's first script ends at the goal,
+    # 1.91 cm off, short of the 1 cm margin; the two variants run and miss, and the first script's plan is
+    # returned without any discovery (stages.solve_physical)
+    goal = draw_goals(25, 0, settings)[0][24]
+    result = plan_push("scm", goal.beta, target_position_m=np.array(goal.target_position_m),
+                       target_yaw_rad=goal.target_yaw_rad, settings=settings)
+    starts = [stage.name.split(": ")[0].split(", ")[-1] for stage in result.stages]  # "horizon 2 s, scripted 3"
+    margin = settings.stages.goal_margin * settings.task.success_position_error_m
+    first = [stage.position_error_m for start, stage in zip(starts, result.stages) if start == "scripted"]
+    assert result.metrics.success and margin <= result.metrics.position_error_m == min(first)
+    assert sorted(set(starts)) == ["scripted", "scripted 2", "scripted 3"]
