@@ -278,12 +278,15 @@ def solve_physical(settings: Settings, request: PushRequest, *,
         it. A script's success short of the margin lets the next scripts run, and the best is kept: at
         the tolerance, which start's plan is returned flips with a hair of change in the request, and a
         script costs a second or two (README: stability)."""
-        rank, reached, outcome = results[index]
+        executed, outcome = results[index]
         if outcome.status.interrupted:
             return True
         if index + 1 < scripts:
-            return Executed.succeeds(rank) and reached
-        return any(Executed.succeeds(results[i][0]) for i in range(index + 1) if i in results)
+            return succeeds(executed) and executed.reaches(settings)
+        return any(succeeds(results[i][0]) for i in range(index + 1) if i in results)
+
+    def succeeds(executed: Executed) -> bool:
+        return Executed.succeeds(executed.rank(settings))
 
     def decided() -> bool:
         """Whether the finished starts settle the plan: the first unfinished start comes after a start
@@ -324,12 +327,12 @@ def solve_physical(settings: Settings, request: PushRequest, *,
         ordered.append(results[index])
         if settles(index):
             break
-    _, _, outcome = min(ordered, key=lambda result: result[0])
-    log = tuple(entry for _, _, result in ordered for entry in result.log)
-    records = tuple(record for _, _, result in ordered for record in result.stages)
-    interrupted = next((result.status for _, _, result in ordered if result.status.interrupted), None)
+    _, outcome = min(ordered, key=lambda result: result[0].rank(settings))
+    log = tuple(entry for _, result in ordered for entry in result.log)
+    records = tuple(record for _, result in ordered for record in result.stages)
+    interrupted = next((result.status for _, result in ordered if result.status.interrupted), None)
     return dataclasses.replace(outcome, log=log, stages=records, status=interrupted or outcome.status,
-                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, _, result in ordered))
+                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in ordered))
 
 
 class _Stop:
@@ -346,7 +349,7 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
                  prefix: str):
     """One start: the discovery drawing the plate onto the object from `fraction` of the horizon on (None:
     the scripted push, cito_ros.scripted, instead of a discovery), then the physical stages. Returns the
-    best plan's rank, whether it is at the goal with the margin (Executed.reaches) and the outcome."""
+    best plan's execution (its rank and whether it is at the goal with the margin) and the outcome."""
     began = time.perf_counter()
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
@@ -360,7 +363,7 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
                             base.derivative_settings, base.position_scale_min_m)
     executor = physical_twin(discovery, discovery.cost)
     run = _Run(clock, prefix, stop, settings.stages.ipopt_curvature)
-    best = None  # (rank, torques, status, executed)
+    best = None  # (executed, torques, status)
     if fraction is None:
         torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
         touch = touch_profile(executor, executor.with_torques(torques), settings.stages.touch_force_N)
@@ -370,7 +373,7 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
         stage, executed = run.stage(discovery, settings.stages.solver, discovery.initial_guess, discovery.lower,
                                     discovery.upper, "discovery", settings.stages.discovery.max_iter, executor)
         planned_z = stage.z
-        best = (executed.rank(settings), discovery.split(stage.z)[0], stage.status, executed)
+        best = (executed, discovery.split(stage.z)[0], stage.status)
         began = time.perf_counter()
         touch = touch_profile(discovery, planned_z, settings.stages.touch_force_N)
         setup_s += time.perf_counter() - began
@@ -378,22 +381,22 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
     for index, spec in enumerate(settings.stages.physical):
         if run.interrupted:
             break
-        if spec.only_if_beyond_limits and not best[0][0]:  # best[0][0]: beyond the arm's limits
+        if spec.only_if_beyond_limits and not best[0].rank(settings)[0]:  # rank[0]: beyond the arm's limits
             continue
         problem = physical_twin(discovery, stage_cost(settings, base.weights, False, spec.contact_weight, touch,
                                                       spec.joint_speed_weight, spec.joint_position_weight))
         stage, result = run.stage(problem, settings.stages.solver, problem.with_torques(torques),
                                     problem.lower, problem.upper, f"physical {index + 1}", spec.max_iter, executor)
         torques = problem.split(stage.z)[0]
-        if best is None or result.rank(settings) < best[0]:
-            best = (result.rank(settings), torques, stage.status, result)
+        if best is None or result.rank(settings) < best[0].rank(settings):
+            best = (result, torques, stage.status)
         if result.reaches(settings):
             break
-    rank, chosen, status, executed = best
+    executed, chosen, status = best
     if fraction is None:  # no discovery: the plan under the contact model is the returned torques
         planned_z = discovery.with_torques(chosen)
-    return rank, executed.reaches(settings), Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
-                         tuple(run.records), clock.elapsed(), setup_s)
+    return executed, Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
+                             tuple(run.records), clock.elapsed(), setup_s)
 
 
 def stage_cost(settings: Settings, weights, virtual_force: bool, contact_weight: float,
