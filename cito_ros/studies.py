@@ -202,13 +202,19 @@ def speed_vs_error_table(summary: list[dict[str, Any]], failed: list[dict[str, A
 
 
 def speed_vs_error_plot(summary: list[dict[str, Any]], path: Path) -> Path:
+    """Median solve time against median executed and planned error: a colour per contact model, a
+    marker per setting (named once, in the legend: a dozen settings per model crowd the fast corner,
+    where text labels overlap), each model's Pareto front circled and joined."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
-    figure, axes = plt.subplots(1, 2, figsize=(13, 5.2), sharex=True)
+    variants = list(dict.fromkeys(r["variant"] for r in sorted(summary, key=lambda r: r["median_solve_time_s"])))
+    markers = dict(zip(variants, itertools.cycle("os^vDPX*<>hpd")))
+    figure, axes = plt.subplots(1, 2, figsize=(14, 5.6), sharex=True)
     for axis, key, flag, title in ((axes[0], "median_position_error_m", "pareto",
                                     "executed error (virtual force off)"),
                                    (axes[1], "median_planned_position_error_m", "pareto_planned",
@@ -216,29 +222,27 @@ def speed_vs_error_plot(summary: list[dict[str, Any]], path: Path) -> Path:
         for model in MODELS:
             rows = sorted((r for r in summary if r["contact_model"] == model and r[key] is not None),
                           key=lambda r: r["median_solve_time_s"])
-            if not rows:
-                continue
-            times = [r["median_solve_time_s"] for r in rows]
-            errors = [max(r[key], 1e-5) * 100 for r in rows]
-            axis.scatter(times, errors, color=colors[model], label=model.upper(), s=36, zorder=3)
-            for r, t, e in zip(rows, times, errors):
-                axis.annotate(r["variant"], (t, e), fontsize=7, xytext=(3, 3), textcoords="offset points",
-                              color=colors[model])
+            for r in rows:
+                axis.scatter(r["median_solve_time_s"], max(r[key], 1e-5) * 100, color=colors[model],
+                             marker=markers[r["variant"]], s=44, zorder=3, alpha=0.85)
             front = [r for r in rows if r[flag]]
             axis.step([r["median_solve_time_s"] for r in front],
                       [max(r[key], 1e-5) * 100 for r in front], where="post", color=colors[model], alpha=0.6,
                       linewidth=1.5)
             axis.scatter([r["median_solve_time_s"] for r in front], [max(r[key], 1e-5) * 100 for r in front],
-                         facecolors="none", edgecolors="black", s=110, linewidths=1.2, zorder=4)
+                         facecolors="none", edgecolors="black", s=130, linewidths=1.2, zorder=4)
         axis.set_xscale("log")
         axis.set_yscale("log")
         axis.set_xlabel("median solve time (s)")
         axis.set_ylabel(f"median {title} (cm)")
         axis.set_title(f"speed against {title}")
         axis.grid(True, which="both", alpha=0.3)
-    axes[0].legend(title="circled and joined: the model's\nPareto front (time vs this error)", fontsize=8,
-                   title_fontsize=8)
-    figure.tight_layout()
+    handles = [Line2D([], [], color=colors[m], marker="o", linestyle="", label=m.upper()) for m in MODELS]
+    handles += [Line2D([], [], color="gray", marker=markers[v], linestyle="", label=v) for v in variants]
+    handles.append(Line2D([], [], marker="o", markerfacecolor="none", markeredgecolor="black", markersize=11,
+                          linestyle="", label="the model's Pareto front\n(time vs this error)"))
+    figure.legend(handles=handles, loc="center right", fontsize=8, frameon=False)
+    figure.tight_layout(rect=(0, 0, 0.83, 1))
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return path
