@@ -349,7 +349,7 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
                  prefix: str):
     """One start: the discovery drawing the plate onto the object from `fraction` of the horizon on (None:
     the scripted push, cito_ros.scripted, instead of a discovery), then the physical stages. Returns the
-    best plan's execution (its rank and whether it is at the goal with the margin) and the outcome."""
+    best plan's execution (from which the search derives its rank and goal margin) and the outcome."""
     began = time.perf_counter()
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
