@@ -128,6 +128,20 @@ def test_bench_hard_rejects_unknown_cases():
     assert result.returncode == 2 and "unknown cases ['moon_landing']" in result.stderr
 
 
+def test_bench_roughness_scans_each_scene_and_names_an_unknown_one():
+    result = run("cito-bench", "roughness", "--scenes", "default", "fine_step", "--directions", "1", "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["reference_step_rad"] == pytest.approx(1e-5) and report["torque_step_Nm"] == pytest.approx(5e-4)
+    assert [scene["timestep_s"] for scene in report["scenes"].values()] == [0.005, 0.002]
+    for scene in report["scenes"].values():
+        assert [case["beta"] for case in scene["cases"]] == [5, 6, 7]
+        # the scripted pushes move the cube, and a scan's tiny changes move where it ends
+        assert all(case["tracked_span_m"] > 0 and case["open_loop_span_m"] > 0 for case in scene["cases"])
+    refused = run("cito-bench", "roughness", "--scenes", "default", "moon")  # refused before any scan
+    assert refused.returncode == 2 and "unknown scene 'moon'" in refused.stderr
+
+
 def test_bench_figures(tmp_path):
     result = run("cito-bench", "figures", "--out", str(tmp_path), timeout=900)
     assert result.returncode == 0, result.stderr

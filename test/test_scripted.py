@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from cito_ros.benchmarks import roughness_benchmark
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.scripted import joint_path, plate_path, scripted_torques
 from cito_ros.planner import plan_push
@@ -85,3 +86,14 @@ def test_a_scripts_success_short_of_the_goal_margin_runs_the_other_scripts_and_t
     first = [stage.position_error_m for start, stage in zip(starts, result.stages) if start == "scripted"]
     assert result.metrics.success and margin <= result.metrics.position_error_m == min(first)
     assert sorted(set(starts)) == ["scripted", "scripted 2", "scripted 3"]
+
+
+def test_a_scripted_push_that_passes_over_the_object_leaves_its_outcome_unmoved_by_tiny_changes():
+    # the roughness scan of a push that never touches the cube: the arm alone is smooth, so every jump is 0
+    report = roughness_benchmark(("default",), betas=(7,), directions=1, points=5,
+                                 overrides={"stages.scripted.contact_height_m": 0.3})
+    case, = report["scenes"]["default"]["cases"]
+    assert case["tracked_jump_m"] == case["open_loop_jump_m"] == 0.0
+    assert case["hop_m"] < 1e-6
+    with pytest.raises(ValueError, match="at least 3 points"):
+        roughness_benchmark(("default",), points=2)

@@ -9,6 +9,7 @@
     cito-bench hard [--json] [--out DIR]          cases that stress the numerics
     cito-bench collisions [--json] [--out DIR]    the minimal scene against all collisions
     cito-bench figures [--out DIR]                snapshots and plots of planned motions
+    cito-bench roughness [--scenes S ...] [--json]   how far a push's outcome jumps under tiny changes
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -37,6 +38,21 @@ def print_rollout(result: dict) -> None:
     print(f"  native       {result['native_rollout_ms']:8.3f} ms   ({result['step_us']:.2f} us/step)")
     print(f"  python       {result['python_rollout_ms']:8.3f} ms   (native is {result['speedup_native_over_python']:.1f}x faster)")
     print(f"  batched      {result['batched_rollouts_per_s']:8.0f} rollouts/s on {result['batch_threads']} threads")
+
+
+def roughness_table(result: dict) -> str:
+    lines = [f"The scripted push of the paper's three start poses, scanned: its tracked joint reference in steps of "
+             f"{result['reference_step_rad']:g} rad, its torques open loop in steps of {result['torque_step_Nm']:g} "
+             f"N m (largest change of the final position error between neighbouring points, median / max over "
+             f"the scans)", "",
+             "| scene | step (ms) | rollout (ms) | tracked jump (cm) | open-loop jump (cm) | cube hop (mm) |",
+             "|---|---|---|---|---|---|"]
+    for name, scene in result["scenes"].items():
+        lines.append(f"| {name} | {1e3 * scene['timestep_s']:g} | {scene['rollout_ms']['median']:.2f} | "
+                     f"{100 * scene['tracked_jump_m']['median']:.2f} / {100 * scene['tracked_jump_m']['max']:.2f} | "
+                     f"{100 * scene['open_loop_jump_m']['median']:.2f} / "
+                     f"{100 * scene['open_loop_jump_m']['max']:.2f} | {1e3 * scene['hop_m']['max']:.1f} |")
+    return "\n".join(lines)
 
 
 def add_sweep_options(parser: argparse.ArgumentParser) -> None:
@@ -106,6 +122,10 @@ def main(argv: list[str] | None = None) -> int:
     add_sweep_options(collisions)
     figures = commands.add_parser("figures", help="snapshots and plots of planned motions")
     figures.add_argument("--out", type=Path, default=Path("docs/figures"))
+    roughness = commands.add_parser("roughness", help="how far a push's outcome jumps under tiny changes, per scene")
+    roughness.add_argument("--scenes", nargs="+", default=["default", "fine_step"], help="config/scenes names")
+    roughness.add_argument("--directions", type=positive_int, default=2, help="seeded scan directions per case")
+    roughness.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
 
     if args.command == "rollout":
@@ -203,6 +223,12 @@ def main(argv: list[str] | None = None) -> int:
         (args.out / "collisions.md").write_text(report)
         (args.out / "collisions.json").write_text(json.dumps(result, indent=1))
         print(json.dumps(result) if args.json else report)
+    elif args.command == "roughness":
+        try:
+            result = benchmarks.roughness_benchmark(tuple(args.scenes), directions=args.directions)
+        except ValueError as error:  # an unknown scene
+            parser.error(str(error))
+        print(json.dumps(result) if args.json else roughness_table(result))
     elif args.command == "figures":
         from cito_ros import figures as figure_module
 
