@@ -609,8 +609,13 @@ class PushProblem:
         S, N, w = self.steps_per_knot, self.n_knots, self.width
         nx = 2 * self.scene.model.nv
         running, G = self._running_residuals(evaluation.sensordata)
-        C, D = linearization.C[:, self.used_rows, :], linearization.D[:, self.used_rows, :]
+        # the actuators no decision drives left out: without the virtual force, the contact law's
+        # derivative at zero control is infinite wherever the plate's centre is inside the object
+        # (k exp(-(c/k) phi) for phi < 0), and 0 * inf would make the whole knot's expansion NaN
         P = self.decision_map()
+        driven = np.flatnonzero(P.any(axis=1))
+        P, B = P[driven], linearization.B[:, :, driven]
+        C, D = linearization.C[:, self.used_rows, :], linearization.D[:, self.used_rows][:, :, driven]
         X = np.repeat(np.eye(nx)[None], N, axis=0)   # d x_t / d x_l, all knots at once
         U = np.zeros((N, nx, w))                       # d x_t / d c_l
         Jx, Jc, r = [], [], []  # each knot's running residuals and their Jacobians, step by step
@@ -620,7 +625,7 @@ class PushProblem:
             Jc.append(G[steps] @ (C[steps] @ U + D[steps] @ P))
             r.append(running[steps][..., None])
             X = linearization.A[steps] @ X
-            U = linearization.A[steps] @ U + linearization.B[steps] @ P
+            U = linearization.A[steps] @ U + B[steps] @ P
         # stacked over the knot's steps, the sums over steps are batched products
         Jx, Jc, r = np.concatenate(Jx, axis=1), np.concatenate(Jc, axis=1), np.concatenate(r, axis=1)
         lx, lc = 2 * (Jx.mT @ r)[..., 0], 2 * (Jc.mT @ r)[..., 0]

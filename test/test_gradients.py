@@ -322,3 +322,25 @@ def test_object_columns_left_out_before_the_arm_touches_the_object_change_no_sen
     for left_out, computed in zip(forward_sensitivities(skipped.A, skipped.B, skipped.C, skipped.D, S),
                                   forward_sensitivities(full.A, full.B, full.C, full.D, S)):
         np.testing.assert_allclose(left_out, computed, rtol=1e-12, atol=1e-12 * np.abs(computed).max())
+
+
+def test_a_physical_stage_expansion_stays_finite_with_the_plate_inside_the_object(settings):
+    # Without the virtual force the contact actuator's control is 0, where SCM's law k exp(-(c/k) phi)
+    # has an infinite derivative in k once the plate's centre is inside the object (phi < 0). No
+    # decision drives that actuator, so iLQR's expansion must not see it (0 * inf made it NaN, and
+    # iLQR stalled there).
+    base = make_problem(settings, "scm")
+    scene = base.scene
+    state = base.initial_state.copy()
+    data = scene.data_at(scene.arm_qpos(state))
+    inside = data.site_xpos[scene.robot_site_id] + [scene.object_half_size[0] - 0.01, 0.0, 0.0]
+    scene.object_qpos(state)[:3] = inside
+    problem = physical_twin(PushProblem(base.simulator, state, base.task, base.cost, settings.gradient,
+                                        settings.task.position_error_scale_min_m), base.cost)
+    z = problem.initial_guess
+    evaluation = problem.evaluate(z)
+    assert problem.signed_distance(evaluation.sensordata)[0] < 0
+    assert not np.isfinite(problem.linearize(z).B[0][:, scene.contact_actuator_id]).all()
+    expansion = problem.knot_expansion(z)
+    for name in ("fx", "fc", "lx", "lc", "lxx", "lcc", "lcx", "vx", "vxx"):
+        assert np.isfinite(getattr(expansion, name)).all(), name
