@@ -170,23 +170,27 @@ def solve_cost_benchmark(goals: int = 20, seed: int = 0, repeats: int = 20) -> d
 
 def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), betas: tuple[int, ...] = (5, 6, 7),
                         directions: int = 2, points: int = 21, reference_amplitude_rad: float = 1e-4,
-                        torque_amplitude_Nm: float = 5e-3, overrides: dict | None = None, seed: int = 0) -> dict:
+                        torque_amplitude_Nm: float = 5e-3, overrides: dict | None = None, seed: int = 0,
+                        plans: bool = False) -> dict:
     """How far the executed outcome of a push jumps under tiny changes of the plan, per scene: why a
     request moved by 1e-9 can end elsewhere (README: tiny changes). For each paper start pose (beta,
-    the default target), the scripted push (cito_ros.scripted) is scanned along `directions` seeded
-    random directions at `points` evenly spaced amplitudes: its joint reference, tracked by the PD
+    the default target), the scripted push (cito_ros.scripted) or, with `plans`, the plan the planner
+    returns (SCM) is scanned along `directions` seeded random directions at `points` (odd) evenly
+    spaced amplitudes: its joint reference (the executed trajectory of a plan), tracked by the PD
     controller (cito_ros.tracking), within +-reference_amplitude_rad of every joint; and its knot
     torques, executed open loop without the virtual force, within +-torque_amplitude_Nm. A smooth
     outcome changes little between neighbouring points; the largest change of the final position error
     between neighbours is the scan's jump. Beside it, how high the cube leaves its resting height in
-    the unperturbed tracked push (a cube that hops lands on an edge), and the rollout time of the
-    scene's step (the price of a finer one)."""
+    the unperturbed tracked push (a cube that hops lands on an edge), the executed error of the
+    unperturbed torques (the scans' centre), and the rollout time of the scene's step (the price of a
+    finer one)."""
     from cito_ros import tracking
     from cito_ros.scripted import JointPath, joint_path, scripted_torques
     from cito_ros.stages import physical_twin
 
-    if points < 3 or directions < 1:
-        raise ValueError(f"a scan needs at least 3 points and 1 direction, got {points} and {directions}")
+    if points < 3 or points % 2 == 0 or directions < 1:
+        raise ValueError(f"a scan needs an odd number of points, at least 3, and 1 direction, got {points} and "
+                         f"{directions}")
     # every scene parsed before the first scan: an unknown one is refused at once
     scene_settings = {scene: load_settings().with_overrides({**(overrides or {}), "scene": scene}) for scene in scenes}
     results = {}
@@ -194,11 +198,16 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
         rng = np.random.default_rng(seed)
         cases = []
         for beta in betas:
-            problem = build_problem(settings, PushRequest("scm", beta=beta)).problem
+            plan = plan_push("scm", beta, settings=settings) if plans else None
+            horizon = {"horizon_s": float(plan.knot_time_s[-1])} if plans else {}  # a longer start's
+            problem = build_problem(settings.with_overrides(horizon), PushRequest("scm", beta=beta)).problem
             executor = physical_twin(problem, problem.cost)
             simulator = executor.simulator
-            path = joint_path(executor, settings.stages.scripted)
-            torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
+            if plans:
+                path, torques = JointPath(plan.trajectory.q, plan.trajectory.qdot), plan.knot_torques_Nm
+            else:
+                path = joint_path(executor, settings.stages.scripted)
+                torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
             nominal = tracking.track(simulator, executor.initial_state, path, settings.tracking)
             hop_m = float(np.max(nominal.object_position_m[:, 2] - nominal.object_position_m[0, 2]))
             controls = simulator.step_controls(executor.knot_controls(executor.with_torques(torques)))[None]
@@ -219,16 +228,18 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
                     evaluation = executor.evaluate(executor.with_torques(
                         torques + fraction * torque_amplitude_Nm * direction_torque))
                     open_loop.append(evaluation.position_error_m)
-                cases.append({"beta": beta, "tracked_jump_m": float(np.max(np.abs(np.diff(tracked)))),
+                cases.append({"beta": beta, "executed_error_m": open_loop[points // 2],
+                              "success": None if plan is None else plan.metrics.success,
+                              "tracked_jump_m": float(np.max(np.abs(np.diff(tracked)))),
                               "tracked_span_m": float(np.ptp(tracked)),
                               "open_loop_jump_m": float(np.max(np.abs(np.diff(open_loop)))),
                               "open_loop_span_m": float(np.ptp(open_loop)), "hop_m": hop_m,
                               "rollout_ms": rollout_ms})
         summary = {key: {"median": float(statistics.median(c[key] for c in cases)),
                          "max": float(max(c[key] for c in cases))}
-                   for key in ("tracked_jump_m", "open_loop_jump_m", "hop_m", "rollout_ms")}
+                   for key in ("tracked_jump_m", "open_loop_jump_m", "hop_m", "executed_error_m", "rollout_ms")}
         results[scene] = {"timestep_s": settings.scene.timestep_s, **summary, "cases": cases}
-    return {"reference_step_rad": 2 * reference_amplitude_rad / (points - 1),
+    return {"scanned": "plans" if plans else "scripts", "reference_step_rad": 2 * reference_amplitude_rad / (points - 1),
             "torque_step_Nm": 2 * torque_amplitude_Nm / (points - 1), "scenes": results}
 
 

@@ -138,7 +138,7 @@ def test_bench_roughness_scans_each_scene_and_names_an_unknown_one():
         assert [case["beta"] for case in scene["cases"]] == [5, 6, 7]
         # the scripted pushes move the cube, and a scan's tiny changes move where it ends
         assert all(case["tracked_span_m"] > 0 and case["open_loop_span_m"] > 0 for case in scene["cases"])
-    refused = run("cito-bench", "roughness", "--scenes", "default", "moon")  # refused before any scan
+    refused = run("cito-bench", "roughness", "--scenes", "default", "moon", "--plans")  # before any solve or scan
     assert refused.returncode == 2 and "unknown scene 'moon'" in refused.stderr
 
 

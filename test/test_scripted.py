@@ -95,5 +95,15 @@ def test_a_scripted_push_that_passes_over_the_object_leaves_its_outcome_unmoved_
     case, = report["scenes"]["default"]["cases"]
     assert case["tracked_jump_m"] == case["open_loop_jump_m"] == 0.0
     assert case["hop_m"] < 1e-6
-    with pytest.raises(ValueError, match="at least 3 points"):
-        roughness_benchmark(("default",), points=2)
+    with pytest.raises(ValueError, match="an odd number of points, at least 3"):
+        roughness_benchmark(("default",), points=4)
+
+
+def test_the_roughness_scan_of_plans_is_centred_on_the_plan_the_planner_returns():
+    # with plans, the scan's unperturbed point is the returned torques executed: the same executed error
+    # as the plan's own (plans are bit-identical request to request)
+    report = roughness_benchmark(("default",), betas=(7,), directions=1, points=3, plans=True)
+    case, = report["scenes"]["default"]["cases"]
+    plan = plan_push("scm", 7)
+    assert report["scanned"] == "plans" and case["success"] == plan.metrics.success
+    assert case["executed_error_m"] == plan.metrics.position_error_m

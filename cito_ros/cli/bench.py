@@ -9,7 +9,7 @@
     cito-bench hard [--json] [--out DIR]          cases that stress the numerics
     cito-bench collisions [--json] [--out DIR]    the minimal scene against all collisions
     cito-bench figures [--out DIR]                snapshots and plots of planned motions
-    cito-bench roughness [--scenes S ...] [--json]   how far a push's outcome jumps under tiny changes
+    cito-bench roughness [--scenes S ...] [--plans] [--json]   how far a push's outcome jumps under tiny changes
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -41,17 +41,20 @@ def print_rollout(result: dict) -> None:
 
 
 def roughness_table(result: dict) -> str:
-    lines = [f"The scripted push of the paper's three start poses, scanned: its tracked joint reference in steps of "
+    what = "The plans the planner returns (SCM)" if result["scanned"] == "plans" else "The scripted push"
+    lines = [f"{what} of the paper's three start poses, scanned: its tracked joint reference in steps of "
              f"{result['reference_step_rad']:g} rad, its torques open loop in steps of {result['torque_step_Nm']:g} "
              f"N m (largest change of the final position error between neighbouring points, median / max over "
              f"the scans)", "",
-             "| scene | step (ms) | rollout (ms) | tracked jump (cm) | open-loop jump (cm) | cube hop (mm) |",
-             "|---|---|---|---|---|---|"]
+             "| scene | step (ms) | rollout (ms) | tracked jump (cm) | open-loop jump (cm) | cube hop (mm) "
+             "| executed error (cm) |",
+             "|---|---|---|---|---|---|---|"]
     for name, scene in result["scenes"].items():
         lines.append(f"| {name} | {1e3 * scene['timestep_s']:g} | {scene['rollout_ms']['median']:.2f} | "
                      f"{100 * scene['tracked_jump_m']['median']:.2f} / {100 * scene['tracked_jump_m']['max']:.2f} | "
                      f"{100 * scene['open_loop_jump_m']['median']:.2f} / "
-                     f"{100 * scene['open_loop_jump_m']['max']:.2f} | {1e3 * scene['hop_m']['max']:.1f} |")
+                     f"{100 * scene['open_loop_jump_m']['max']:.2f} | {1e3 * scene['hop_m']['max']:.1f} | "
+                     f"{100 * scene['executed_error_m']['median']:.2f} / {100 * scene['executed_error_m']['max']:.2f} |")
     return "\n".join(lines)
 
 
@@ -125,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     roughness = commands.add_parser("roughness", help="how far a push's outcome jumps under tiny changes, per scene")
     roughness.add_argument("--scenes", nargs="+", default=["default", "fine_step"], help="config/scenes names")
     roughness.add_argument("--directions", type=positive_int, default=2, help="seeded scan directions per case")
+    roughness.add_argument("--plans", action="store_true",
+                           help="scan the plans the planner returns for those pushes instead of the scripted pushes")
     roughness.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
 
@@ -225,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result) if args.json else report)
     elif args.command == "roughness":
         try:
-            result = benchmarks.roughness_benchmark(tuple(args.scenes), directions=args.directions)
+            result = benchmarks.roughness_benchmark(tuple(args.scenes), directions=args.directions, plans=args.plans)
         except ValueError as error:  # an unknown scene
             parser.error(str(error))
         print(json.dumps(result) if args.json else roughness_table(result))
