@@ -199,7 +199,7 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
         cases = []
         for beta in betas:
             plan = plan_push("scm", beta, settings=settings) if plans else None
-            horizon = {"horizon_s": float(plan.knot_time_s[-1])} if plans else {}  # a longer start's
+            horizon = {"horizon_s": float(plan.knot_time_s[-1])} if plans else {}  # a later start may be longer
             problem = build_problem(settings.with_overrides(horizon), PushRequest("scm", beta=beta)).problem
             executor = physical_twin(problem, problem.cost)
             simulator = executor.simulator
