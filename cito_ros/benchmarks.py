@@ -185,7 +185,7 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
     unperturbed torques (the scans' centre), and the rollout time of the scene's step (the price of a
     finer one)."""
     from cito_ros import tracking
-    from cito_ros.scripted import JointPath, joint_path, scripted_torques
+    from cito_ros.scripted import joint_path, scripted_torques
     from cito_ros.stages import physical_twin
 
     if points < 3 or points % 2 == 0 or directions < 1:
@@ -204,7 +204,7 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
             executor = physical_twin(problem, problem.cost)
             simulator = executor.simulator
             if plans:
-                path, torques = JointPath(plan.trajectory.q, plan.trajectory.qdot), plan.knot_torques_Nm
+                path, torques = tracking.JointPath(plan.trajectory.q, plan.trajectory.qdot), plan.knot_torques_Nm
             else:
                 path = joint_path(executor, settings.stages.scripted)
                 torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
@@ -212,17 +212,14 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
             hop_m = float(np.max(nominal.object_position_m[:, 2] - nominal.object_position_m[0, 2]))
             controls = simulator.step_controls(executor.knot_controls(executor.with_torques(torques)))[None]
             rollout_ms = median_ms(lambda: simulator.rollout_batch(executor.initial_state[None], controls), 10)
-            knots = np.linspace(0.0, simulator.n_knots, len(path.q))
             for _ in range(directions):
-                corners = rng.uniform(-1.0, 1.0, (simulator.n_knots + 1, 7))
-                direction_q = np.stack([np.interp(knots, np.arange(simulator.n_knots + 1), corners[:, j])
-                                        for j in range(7)], axis=1)
-                direction_qdot = np.gradient(direction_q, simulator.timestep_s, axis=0)
+                direction_q, direction_qdot = tracking.smooth_offset(rng, simulator.n_knots, len(path.q),
+                                                                     simulator.timestep_s)
                 direction_torque = rng.uniform(-1.0, 1.0, torques.shape)
                 tracked, open_loop = [], []
                 for fraction in np.linspace(-1.0, 1.0, points):
                     shift = fraction * reference_amplitude_rad
-                    reference = JointPath(path.q + shift * direction_q, path.qdot + shift * direction_qdot)
+                    reference = tracking.JointPath(path.q + shift * direction_q, path.qdot + shift * direction_qdot)
                     tracked.append(executor.task.final_errors(
                         tracking.track(simulator, executor.initial_state, reference, settings.tracking))[0])
                     evaluation = executor.evaluate(executor.with_torques(

@@ -24,7 +24,7 @@ from cito_ros.settings import Settings
 from cito_ros.typed_config import optional_type
 
 #: Parameters a running node takes up on its next plan (the others are read-only).
-RUNTIME = ("solver.time_limit_s", "node.default_contact_model")
+RUNTIME = ("solver.time_limit_s", "node.default_contact_model", "tracking.reference_offsets")
 #: Every rclpy node's own parameters.
 ROS_PARAMETERS = ("use_sim_time", "start_type_description_service")
 OPTION_SECTIONS = ("solver.ipopt", "solver.least_squares", "solver.ilqr")

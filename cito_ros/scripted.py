@@ -19,22 +19,13 @@ does not succeed costs its stages, and the discovery starts follow as before.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import mujoco
 import numpy as np
 
 from cito_ros import tracking
 from cito_ros.settings import ScriptedSettings, TrackingSettings
 from cito_ros.simulator import FULL_PHYSICS
-
-
-@dataclass(frozen=True)
-class JointPath:
-    """Joint positions and velocities (n_steps + 1, 7) over the states of a horizon."""
-
-    q: np.ndarray
-    qdot: np.ndarray
+from cito_ros.tracking import JointPath
 
 
 def _minimum_jerk(s: float) -> float:

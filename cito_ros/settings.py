@@ -357,6 +357,12 @@ class TrackingSettings:
     max_error_increase_m: float = setting(
         "physical pipeline: a start's plan at the goal ends the search only if the PD controller's execution "
         "ends within this of its executed error; otherwise the next starts run (m)", minimum=0.0)
+    reference_offsets: int = setting(
+        "physical pipeline: seeded smooth offsets of the tracked reference; a start's plan at the goal ends the "
+        "search only if the PD controller brings the object within the success tolerance under every one and "
+        "without them (where no start's does, the best plan is one it follows without them); 0: the nominal "
+        "tracking alone, within max_error_increase_m", minimum=0)
+    reference_offset_rad: float = setting("the largest offset of any joint (rad)", minimum=0.0)
 
     def check(self, path: str) -> None:
         if len(self.kp) != 7 or len(self.kd) != 7:

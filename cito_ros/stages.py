@@ -34,8 +34,9 @@ A stage without the virtual force ends as soon as its plan, executed, is at the 
 (`stages.goal_margin`), and the start with it. Every stage's torques, executed without the virtual
 force, are a candidate; the plan returned is the first start's that succeeds and that a PD joint
 trajectory controller follows (its tracked execution within tracking.max_error_increase_m of the
-executed error), or else the best of all (within the arm's speed limits and ranges first, then at the
-goal, then followed, then closest to it). A script's success short of the goal margin is the one
+executed error; with tracking.reference_offsets, also to the goal with its reference slightly off), or
+else the best of all (within the arm's speed limits and ranges first, then at the goal, then followed,
+then followed with the offsets, then closest to it). A script's success short of the goal margin is the one
 exception: the scripts after it run too, and the best of them is returned.
 """
 from __future__ import annotations
@@ -88,6 +89,7 @@ class Executed:
     max_joint_speed_ratio: float
     joint_range_excess_rad: float
     tracked_position_error_m: float = math.nan  # by a PD joint trajectory controller; nan: not tracked
+    offset_tracked_error_m: float = math.nan    # the worst with the reference off (tracking.reference_offsets)
 
     def rank(self, settings: Settings) -> tuple:
         task = settings.task
@@ -95,18 +97,24 @@ class Executed:
                    and self.orientation_error_rad < task.success_orientation_error_rad)
         beyond_limits = (self.max_joint_speed_ratio > settings.limits.max_joint_speed_ratio
                          or self.joint_range_excess_rad > 0.0)
-        # not math.isnan: an untracked candidate is never taken for a trackable one
+        # comparisons, not math.isnan: an untracked candidate is never taken for a trackable one
         trackable = self.tracked_position_error_m - self.position_error_m <= settings.tracking.max_error_increase_m
-        return (beyond_limits, not at_goal, not trackable,
+        # with reference offsets, followed to the goal also with the reference slightly off; ranked after
+        # the nominal tracking, so that where no start gives such a plan the best is one the controller follows
+        sturdy = not settings.tracking.reference_offsets or all(
+            error < task.success_position_error_m for error in (self.tracked_position_error_m,
+                                                                 self.offset_tracked_error_m))
+        return (beyond_limits, not at_goal, not trackable, not sturdy,
                 self.position_error_m / task.success_position_error_m
                 + self.orientation_error_rad / task.success_orientation_error_rad)
 
     @staticmethod
     def succeeds(rank: tuple) -> bool:
         """Whether a rank ends the search: within the arm's limits, at the goal, and followed by a joint
-        trajectory controller to within tracking.max_error_increase_m of the executed error."""
-        beyond_limits, away, untrackable, _ = rank
-        return not beyond_limits and not away and not untrackable
+        trajectory controller to within tracking.max_error_increase_m of the executed error (and with
+        tracking.reference_offsets, to the goal under each offset and without)."""
+        beyond_limits, away, untrackable, fragile, _ = rank
+        return not beyond_limits and not away and not untrackable and not fragile
 
     def reaches(self, settings: Settings) -> bool:
         """Whether it is at the goal with the margin that ends the stages early (stages.goal_margin):
@@ -118,14 +126,23 @@ class Executed:
 
 
 def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings) -> Executed:
-    """The executed errors and arm limits of torques, by `executor` (no virtual force), and the error of
-    the executed joint trajectory tracked by a PD controller with `gains` (cito_ros.tracking)."""
+    """The executed errors and arm limits of torques, by `executor` (no virtual force), the error of the
+    executed joint trajectory tracked by a PD controller with `gains` (cito_ros.tracking), and the worst
+    error of that tracking with the reference off by each of gains.reference_offsets seeded smooth offsets
+    (the same for every plan) of up to gains.reference_offset_rad."""
     evaluation = executor.evaluate(executor.with_torques(torques))
     executed = judge(executor, evaluation)
     if not math.isfinite(executed.position_error_m):
         return executed
-    tracked = tracking.track(executor.simulator, executor.initial_state, executor.trajectory(evaluation.z), gains)
-    return dataclasses.replace(executed, tracked_position_error_m=executor.task.final_errors(tracked)[0])
+    simulator, trajectory = executor.simulator, executor.trajectory(evaluation.z)
+
+    def tracked_error(reference) -> float:
+        return executor.task.final_errors(tracking.track(simulator, executor.initial_state, reference, gains))[0]
+
+    offsets = tracking.offset_references(trajectory, simulator.n_knots, simulator.timestep_s, gains.reference_offsets,
+                                         gains.reference_offset_rad, seed=12345)  # the same for every plan
+    return dataclasses.replace(executed, tracked_position_error_m=tracked_error(trajectory),
+                               offset_tracked_error_m=max(map(tracked_error, offsets), default=math.nan))
 
 
 def judge(executor: PushProblem, evaluation) -> Executed:

@@ -7,6 +7,7 @@ motors the planner uses (cito.compensated_motor). The gains are the settings' `t
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import mujoco
@@ -18,10 +19,41 @@ from cito_ros.simulator import FULL_PHYSICS, Simulator, Trajectory
 
 class JointReference(Protocol):
     """What the controller tracks: joint positions and velocities (n_steps + 1, 7) at every state (a
-    Trajectory, or the scripted start's cito_ros.scripted.JointPath)."""
+    Trajectory, or a JointPath)."""
 
     q: np.ndarray
     qdot: np.ndarray
+
+
+@dataclass(frozen=True)
+class JointPath:
+    """Joint positions and velocities (n_steps + 1, 7) over the states of a horizon: the scripted start's
+    path (cito_ros.scripted), or a plan's reference moved by an offset."""
+
+    q: np.ndarray
+    qdot: np.ndarray
+
+
+def smooth_offset(rng: np.random.Generator, n_knots: int, n_states: int,
+                  timestep_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A seeded random joint offset (n_states, 7), within [-1, 1] for every joint, drawn at the horizon's
+    n_knots + 1 knot times and linear between them (a servo's steady error, smooth enough for the
+    controller to follow), and its rate (per second)."""
+    corners = rng.uniform(-1.0, 1.0, (n_knots + 1, 7))
+    times = np.linspace(0.0, n_knots, n_states)
+    offset = np.stack([np.interp(times, np.arange(n_knots + 1), corners[:, j]) for j in range(7)], axis=1)
+    return offset, np.gradient(offset, timestep_s, axis=0)
+
+
+def offset_references(reference: JointReference, n_knots: int, timestep_s: float, count: int, amplitude_rad: float,
+                      seed: int) -> list[JointPath]:
+    """`reference` moved by `count` smooth offsets (smooth_offset) of up to amplitude_rad, drawn from `seed`."""
+    rng = np.random.default_rng(seed)
+    moved = []
+    for _ in range(count):
+        offset, rate = smooth_offset(rng, n_knots, len(reference.q), timestep_s)
+        moved.append(JointPath(reference.q + amplitude_rad * offset, reference.qdot + amplitude_rad * rate))
+    return moved
 
 
 def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,

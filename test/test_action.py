@@ -50,6 +50,8 @@ class ActionUser(Client):
     def set_parameter(self, name: str, value) -> tuple[bool, str]:
         if isinstance(value, str):
             v = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+        elif isinstance(value, int):
+            v = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
         else:
             v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(value))
         answer = self.wait([self.parameters.call_async(SetParameters.Request(
@@ -157,6 +159,10 @@ def test_a_parameter_change_applies_to_the_next_plan_and_bad_values_are_refused(
     assert not ok and "solver.time_limit_s" in reason
     ok, reason = client.set_parameter("beta", 6.0)
     assert not ok and "read-only" in reason
+    ok, reason = client.set_parameter("tracking.reference_offsets", -1)  # the descriptor's range
+    assert not ok and "tracking.reference_offsets out of range" in reason
+    assert client.set_parameter("tracking.reference_offsets", 4) == (True, "")  # sturdier plans, from the next on
+    assert client.set_parameter("tracking.reference_offsets", 0) == (True, "")
     assert client.set_parameter("node.default_contact_model", "cccm") == (True, "")
     try:
         handle = client.send(model="")

@@ -1,21 +1,23 @@
 """Planning: physical success, the arm's limits, the contact models' own plans, cancellation,
 statuses, determinism and bad requests. Real MuJoCo, real iLQR and IPOPT."""
 import dataclasses
+import math
 import threading
 import time
 
 import numpy as np
 import pytest
 
-from cito_ros import benchmarks
+from cito_ros import benchmarks, targets
 from cito_ros.builder import PushRequest, build_problem
 from cito_ros.ilqr import IlqrSolver
 from cito_ros.ipopt import IpoptSolver
 from cito_ros.planner import plan_push
 from cito_ros.results import PHASE_METRICS, IterationLog, Status
 from cito_ros.scene import start_configuration
+from cito_ros.scripted import scripted_torques
 from cito_ros.solver import IterationMonitor, violation
-from cito_ros.stages import Executed
+from cito_ros.stages import Executed, execute, physical_twin
 from cito_ros.targets import PERTURBATIONS, draw_goals, stability
 
 
@@ -227,6 +229,46 @@ def test_a_plan_the_joint_controller_does_not_follow_ranks_below_one_it_follows(
     assert followed.rank(settings) < lost.rank(settings)
     away = Executed(**{**at_goal, "position_error_m": 0.03}, tracked_position_error_m=0.03)
     assert lost.rank(settings) < away.rank(settings)  # at the goal comes first
+
+
+def test_with_reference_offsets_a_plan_succeeds_only_if_followed_to_the_goal_under_each(settings):
+    settings = settings.with_overrides({"tracking.reference_offsets": 4})
+    at_goal = dict(position_error_m=0.01, orientation_error_rad=0.05, max_joint_speed_ratio=0.9,
+                   joint_range_excess_rad=0.0, tracked_position_error_m=0.012)
+    sturdy = Executed(**at_goal, offset_tracked_error_m=0.018)
+    knife_edge = Executed(**at_goal, offset_tracked_error_m=0.035)  # followed, but not with the reference off
+    near_miss = Executed(**{**at_goal, "tracked_position_error_m": 0.025}, offset_tracked_error_m=0.015)
+    unfollowed = Executed(**{**at_goal, "tracked_position_error_m": 0.05}, offset_tracked_error_m=0.015)
+    assert Executed.succeeds(sturdy.rank(settings))
+    assert not any(Executed.succeeds(e.rank(settings)) for e in (knife_edge, near_miss, unfollowed, Executed(**at_goal)))
+    # where no start is sturdy, the best is still one the controller follows without the offsets
+    assert sturdy.rank(settings) < knife_edge.rank(settings) < unfollowed.rank(settings)
+    # without offsets, the nominal tracking alone decides
+    assert Executed.succeeds(knife_edge.rank(settings.with_overrides({"tracking.reference_offsets": 0})))
+
+
+def test_the_offsets_a_plan_is_tracked_under_are_the_same_for_every_plan(settings):
+    settings = settings.with_overrides({"tracking.reference_offsets": 4})
+    problem = build_problem(settings, PushRequest("scm", 7)).problem
+    executor = physical_twin(problem, problem.cost)
+    torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
+    first, again = (execute(executor, torques, settings.tracking) for _ in range(2))
+    assert first == again and math.isfinite(first.offset_tracked_error_m)
+    # the offsets move the outcome: each is a different execution from the nominal one
+    assert first.offset_tracked_error_m != first.tracked_position_error_m
+
+
+def test_the_benchmark_tracks_the_returned_plan_under_offsets_of_its_reference(settings):
+    """cito-bench targets' offset executions rebuild the plan's horizon and start: with offsets of size 0
+    they are the plan's own tracked execution, bit for bit."""
+    goal = draw_goals(1, 0, settings)[0][0]
+    request = targets.perturbed_request("scm", goal.beta, goal.target_position_m, goal.target_yaw_rad, "none")
+    result = plan_push("scm", start_q=request.start_q, target_position_m=request.target_position_m,
+                       target_yaw_rad=request.target_yaw_rad, settings=settings)
+    unmoved = targets.offset_tracked_errors_m(result, request, settings, seed=0, count=2, amplitude_rad=0.0)
+    assert unmoved == [result.metrics.tracked_position_error_m] * 2
+    moved = targets.offset_tracked_errors_m(result, request, settings, seed=0, count=2)
+    assert len(set(moved)) == 2 and result.metrics.tracked_position_error_m not in moved
 
 
 def test_the_search_goes_on_past_a_start_whose_plan_the_controller_does_not_follow(settings):

@@ -42,6 +42,13 @@ def test_a_sweep_gives_the_same_records_on_ray_and_in_process():
         assert split["inside"]["successes"] + split["near"]["successes"] == \
             sum(r["success"] for r in on_ray if r["contact_model"] == model)
     assert "against the push reach of" in targets.markdown(report)
+    # every plan also tracked with its reference off; the report counts the successes' executions
+    assert all(len(r["offset_tracked_position_errors_m"]) == targets.OFFSETS for r in on_ray)
+    for model, summary in report["models"].items():
+        successes = [r for r in on_ray if r["contact_model"] == model and r["success"]]
+        assert summary["offset_executions_within_2cm"] == [
+            sum(e < 0.02 for r in successes for e in r["offset_tracked_position_errors_m"]),
+            targets.OFFSETS * len(successes)]
 
 
 def test_the_report_sets_apart_the_goals_within_the_band_at_the_push_reach():

@@ -105,6 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     targets.add_argument("--out", type=Path, default=Path("out/targets"),
                          help="reports, and each finished case as it arrives (a rerun skips those)")
     targets.add_argument("--json", action="store_true", help="print the summary and every run")
+    targets.add_argument("--reference-offsets", type=int, default=None, metavar="N",
+                         help="tracking.reference_offsets: plans must also reach the goal when tracked with N offsets "
+                              "of their reference (slower; give another --out, finished cases are reused)")
     add_sweep_options(targets)
     speed = commands.add_parser("speed-vs-error", help="solver effort against error (CSV, Markdown, PNG)")
     speed.add_argument("--out", type=Path, default=Path("out/speed_vs_error"))
@@ -180,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
         from cito_ros.settings import load_settings
 
         settings = load_settings()
+        if args.reference_offsets is not None:
+            settings = settings.with_overrides({"tracking.reference_offsets": args.reference_offsets})
         goals, refused = targets_module.draw_goals(args.n, args.seed, settings)
         jobs = targets_module.jobs(goals, args.models, sweep.settings_for(settings, args.workers), args.perturb)
         records = sweep.run_sweep(jobs, workers=args.workers, address=args.address, out=args.out / f"seed{args.seed}",

@@ -54,12 +54,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="physical (default): executable plans; paper: exactly the paper's problem")
     parser.add_argument("--max-iter", type=int, default=None, help="solver iterations per stage")
     parser.add_argument("--time-limit", type=float, default=None, help="wall-clock limit of the solve (s)")
+    parser.add_argument("--reference-offsets", type=int, default=None, metavar="N",
+                        help="the plan must also reach the goal when a joint trajectory controller tracks it with "
+                             "its reference off by N small seeded offsets (tracking.reference_offsets; slower)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
 
     try:
         overrides = {"solver.max_iter": args.max_iter, "solver.time_limit_s": args.time_limit,
-                     "pipeline": args.pipeline}
+                     "pipeline": args.pipeline, "tracking.reference_offsets": args.reference_offsets}
         settings = load_settings().with_overrides({k: v for k, v in overrides.items() if v is not None})
         bar = None if args.json else progress_bar(None, "solving", "it")
 
