@@ -105,6 +105,12 @@ def _plan(request: PushRequest, settings: Settings) -> PlanResult:
                      target_yaw_rad=request.target_yaw_rad, settings=settings)
 
 
+def offset_verdicts(record: dict[str, Any]) -> list[bool]:
+    """Whether each of a record's executions with the reference off (offset_tracked_errors_m) ends within
+    2 cm of the goal."""
+    return [error < 0.02 for error in record.get("offset_tracked_position_errors_m", ())]
+
+
 def offset_tracked_errors_m(result: PlanResult, request: PushRequest, settings: Settings, seed: int,
                             count: int = OFFSETS, amplitude_rad: float = OFFSET_AMPLITUDE_RAD) -> list[float]:
     """The final position errors of `result`'s joint trajectory (the plan of `request`) tracked by the PD
@@ -215,7 +221,7 @@ def report(records: list[dict[str, Any]], refused: list[str], reach_m: float | N
         successes = [r for r in rows if r["success"]]
         executed = [r["position_error_m"] for r in rows]
         tracked_close = [abs(r["tracked_position_error_m"] - r["position_error_m"]) <= 0.02 for r in successes]
-        offset_ok = [[error < 0.02 for error in r.get("offset_tracked_position_errors_m", ())] for r in successes]
+        offset_ok = [offset_verdicts(r) for r in successes]
         times = [r["solve_time_s"] for r in rows]
         lost = [r for r in failed if f"-{model}-none" in r["key"]]
         per_model[model] = {
@@ -349,8 +355,7 @@ def plot(records: list[dict[str, Any]], path: Path, split: dict[str, Any] | None
                 axis.scatter([x_of(r) for r in chosen], [max(100 * r["position_error_m"], 1e-3) for r in chosen],
                              color=colors.get(model, "gray"), facecolors=colors.get(model, "gray") if success else "none",
                              s=30, label=f"{model.upper()} ({rate:.0%} success)" if success else None)
-        fragile = [r for r in records if r["success"] and not all(
-            error < 0.02 for error in r.get("offset_tracked_position_errors_m", ()))]
+        fragile = [r for r in records if r["success"] and not all(offset_verdicts(r))]
         if fragile:
             axis.scatter([x_of(r) for r in fragile], [max(100 * r["position_error_m"], 1e-3) for r in fragile],
                          color="black", marker="x", s=14, linewidths=0.8,
