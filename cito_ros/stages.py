@@ -135,14 +135,12 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
     if not math.isfinite(executed.position_error_m):
         return executed
     simulator, trajectory = executor.simulator, executor.trajectory(evaluation.z)
-
-    def tracked_error(reference) -> float:
-        return executor.task.final_errors(tracking.track(simulator, executor.initial_state, reference, gains))[0]
-
-    offsets = tracking.offset_references(trajectory, simulator.n_knots, simulator.timestep_s, gains.reference_offsets,
-                                         gains.reference_offset_rad, seed=12345)  # the same for every plan
-    return dataclasses.replace(executed, tracked_position_error_m=tracked_error(trajectory),
-                               offset_tracked_error_m=max(map(tracked_error, offsets), default=math.nan))
+    tracked = tracking.track(simulator, executor.initial_state, trajectory, gains)
+    offset_errors = tracking.offset_position_errors_m(simulator, executor.initial_state, trajectory, gains,
+                                                      executor.task, gains.reference_offsets,
+                                                      gains.reference_offset_rad, seed=12345)  # the same for every plan
+    return dataclasses.replace(executed, tracked_position_error_m=executor.task.final_errors(tracked)[0],
+                               offset_tracked_error_m=max(offset_errors, default=math.nan))
 
 
 def judge(executor: PushProblem, evaluation) -> Executed:

@@ -117,11 +117,8 @@ def offset_tracked_errors_m(result: PlanResult, request: PushRequest, settings: 
     controller with its reference off by each of `count` smooth offsets of up to amplitude_rad from `seed`."""
     settings = settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])})
     problem = build_problem(settings, request).problem
-    simulator = problem.simulator
-    references = tracking.offset_references(result.trajectory, simulator.n_knots, simulator.timestep_s, count,
-                                            amplitude_rad, seed)
-    return [float(problem.task.final_errors(tracking.track(simulator, problem.initial_state, reference,
-                                                           settings.tracking))[0]) for reference in references]
+    return tracking.offset_position_errors_m(problem.simulator, problem.initial_state, result.trajectory,
+                                             settings.tracking, problem.task, count, amplitude_rad, seed)
 
 
 def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "none") -> dict[str, Any]:

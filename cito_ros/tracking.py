@@ -56,6 +56,15 @@ def offset_references(reference: JointReference, n_knots: int, timestep_s: float
     return moved
 
 
+def offset_position_errors_m(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
+                             gains: TrackingSettings, task, count: int, amplitude_rad: float, seed: int) -> list[float]:
+    """The task's final position errors (task.final_errors) of `reference` tracked with each of its
+    offset_references."""
+    return [float(task.final_errors(track(simulator, initial_state, moved, gains))[0])
+            for moved in offset_references(reference, simulator.n_knots, simulator.timestep_s, count, amplitude_rad,
+                                           seed)]
+
+
 def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
           gains: TrackingSettings) -> Trajectory:
     """Execute `reference` under PD control from initial_state."""
