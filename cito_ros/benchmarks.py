@@ -179,7 +179,7 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
     spaced amplitudes: its joint reference (the executed trajectory of a plan), tracked by the PD
     controller (cito_ros.tracking), within +-reference_amplitude_rad of every joint; and its knot
     torques, executed open loop without the virtual force, within +-torque_amplitude_Nm. A smooth
-    outcome changes little between neighbouring points; the largest change of the final position error
+    outcome changes little between neighbouring points; the largest change of the position error at rest
     between neighbours is the scan's jump. Beside it, how high the cube leaves its resting height in
     the unperturbed tracked push (a cube that hops lands on an edge), the executed error of the
     unperturbed torques (the scans' centre), and the rollout time of the scene's step (the price of a
@@ -220,11 +220,13 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
                 for fraction in np.linspace(-1.0, 1.0, points):
                     shift = fraction * reference_amplitude_rad
                     reference = tracking.JointPath(path.q + shift * direction_q, path.qdot + shift * direction_qdot)
-                    tracked.append(executor.task.final_errors(
-                        tracking.track(simulator, executor.initial_state, reference, settings.tracking))[0])
+                    tracked.append(tracking.rest_errors(
+                        simulator, tracking.track(simulator, executor.initial_state, reference,
+                                                  settings.tracking).final_state, executor.task, settings.tracking)[0])
                     evaluation = executor.evaluate(executor.with_torques(
                         torques + fraction * torque_amplitude_Nm * direction_torque))
-                    open_loop.append(evaluation.position_error_m)
+                    open_loop.append(tracking.rest_errors(simulator, evaluation.states[-1], executor.task,
+                                                          settings.tracking)[0])
                 cases.append({"beta": beta, "executed_error_m": open_loop[points // 2],
                               "success": None if plan is None else plan.metrics.success,
                               "tracked_jump_m": float(np.max(np.abs(np.diff(tracked)))),

@@ -78,13 +78,16 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
     trajectory = executor.trajectory(executor.with_torques(outcome.torques))
     tracked = tracking.track(simulator, discovery.initial_state, trajectory, settings.tracking)
 
-    position_error, orientation_error = task.final_errors(trajectory)
-    planned_position_error, planned_orientation_error = task.final_errors(planned)
-    tracked_position_error, tracked_orientation_error = task.final_errors(tracked)
+    # where the object comes to rest once the arm holds its last position: a plan may end with it sliding
+    position_error, orientation_error = tracking.rest_errors(simulator, trajectory.final_state, task, settings.tracking)
+    planned_position_error, planned_orientation_error = task.final_errors(planned)  # the paper's, at T
+    tracked_position_error, tracked_orientation_error = tracking.rest_errors(simulator, tracked.final_state, task,
+                                                                             settings.tracking)
     speed_ratio = float(np.max(np.abs(trajectory.qdot) / discovery.scene.velocity_limit))
     range_excess = discovery.scene.joint_range_excess(trajectory.q)
     status = outcome.status
-    if not (trajectory.finite and planned.finite) or trajectory.warnings or planned.warnings:
+    if not (trajectory.finite and planned.finite) or trajectory.warnings or planned.warnings \
+            or not math.isfinite(position_error):  # NaN: MuJoCo warned while the arm held its last position
         status = Status.NUMERICAL_ERROR
     usable = status is not Status.NUMERICAL_ERROR and math.isfinite(position_error)
     metrics = Metrics(

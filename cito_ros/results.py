@@ -82,17 +82,18 @@ class Metrics:
     """The figures of a plan. Every field is a column of every report and a field of PlanMetrics.msg."""
 
     position_error_m: float = metric("the returned torques executed without the virtual force (on the robot): "
-                                     "final object position vs goal")
-    orientation_error_rad: float = metric("executed: norm of the final Euler-angle deviation from the goal")
+                                     "object position vs goal where it comes to rest, the arm holding its last "
+                                     "position for tracking.hold_s after the horizon")
+    orientation_error_rad: float = metric("executed: norm of the Euler-angle deviation from the goal, at rest")
     tracked_position_error_m: float = metric("the returned joint trajectory executed by a PD joint trajectory "
-                                             "controller: final position error")
-    tracked_orientation_error_rad: float = metric("tracked: final orientation error")
+                                             "controller: position error at rest (after the same hold)")
+    tracked_orientation_error_rad: float = metric("tracked: orientation error at rest")
     planned_position_error_m: float = metric("the contact model's plan, with the virtual force (the paper's)")
     planned_orientation_error_rad: float = metric("planned: final orientation error")
     physical_inaccuracy_Ns: float = metric("the planned virtual force's integral, sum of gamma dt (Table I)")
     max_joint_speed_ratio: float = metric("executed: largest |qdot_j| / velocity limit_j over the horizon")
     joint_range_excess_rad: float = metric("executed: farthest any joint goes beyond its position range (0 inside)")
-    final_object_speed_m_s: float = metric("executed: the object's speed at the end of the horizon")
+    final_object_speed_m_s: float = metric("executed: the object's speed at the end of the horizon, before the hold")
     solve_time_s: float = metric("wall clock of the whole solve")
     setup_time_s: float = metric("posing the problems (scene, simulator, touch-down profile), summed over starts")
     rollout_time_s: float = metric("simulating the solvers' decisions and trials, summed over stages")

@@ -363,6 +363,9 @@ class TrackingSettings:
         "without them (where no start's does, the best plan is one it follows without them); 0: the nominal "
         "tracking alone, within max_error_increase_m", minimum=0)
     reference_offset_rad: float = setting("the largest offset of any joint (rad)", minimum=0.0)
+    hold_s: float = setting(
+        "after a plan's last point the controller holds it at rest this long, as a joint trajectory controller "
+        "does; every execution is judged where the object is then, not at the end of the horizon (s)", minimum=0.0)
 
     def check(self, path: str) -> None:
         if len(self.kp) != 7 or len(self.kd) != 7:

@@ -47,6 +47,7 @@ class Trajectory:
     contact_count: np.ndarray          # (T,) number of robot-object contacts
     ee_velocity_m_s: np.ndarray        # (T, 3) plate-centre velocity, world
     warnings: dict[str, int] = field(default_factory=dict)  # MuJoCo warnings raised during the rollout
+    final_state: np.ndarray | None = None  # the full physics state at t = T, to simulate on from (tracking.hold)
 
     @property
     def finite(self) -> bool:
@@ -232,6 +233,7 @@ class Simulator:
             contact_count=sensordata[:, sensors.contact_found][:, 0].copy(),
             ee_velocity_m_s=sensordata[:, sensors.ee_velocity].copy(),
             warnings=warnings,
+            final_state=all_states[-1].copy(),
         )
 
 

@@ -131,7 +131,7 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
     error of that tracking with the reference off by each of gains.reference_offsets seeded smooth offsets
     (the same for every plan) of up to gains.reference_offset_rad."""
     evaluation = executor.evaluate(executor.with_torques(torques))
-    executed = judge(executor, evaluation)
+    executed = judge(executor, evaluation, gains)
     if not math.isfinite(executed.position_error_m):
         return executed
     simulator, trajectory = executor.simulator, executor.trajectory(evaluation.z)
@@ -139,18 +139,23 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
     offset_errors = tracking.offset_position_errors_m(simulator, executor.initial_state, trajectory, gains,
                                                       executor.task, gains.reference_offsets,
                                                       gains.reference_offset_rad, seed=12345)  # the same for every plan
-    return dataclasses.replace(executed, tracked_position_error_m=executor.task.final_errors(tracked)[0],
+    tracked_error = tracking.rest_errors(simulator, tracked.final_state, executor.task, gains)[0]
+    return dataclasses.replace(executed, tracked_position_error_m=tracked_error,
                                offset_tracked_error_m=max(offset_errors, default=math.nan))
 
 
-def judge(executor: PushProblem, evaluation) -> Executed:
-    """The executed errors and arm limits of an evaluation of `executor` (no virtual force), untracked."""
+def judge(executor: PushProblem, evaluation, gains: TrackingSettings) -> Executed:
+    """The executed errors where the object comes to rest (tracking.rest_errors, the arm holding its last
+    position for gains.hold_s) and the arm limits over the horizon of an evaluation of `executor` (no
+    virtual force), untracked."""
     if not evaluation.finite:
         return Executed(math.inf, math.inf, math.inf, math.inf)
     scene = executor.scene
-    position_error, angle_error = executor.task.pose_error(scene.object_qpos(evaluation.states[-1]))
+    position_error, angle_error = tracking.rest_errors(executor.simulator, evaluation.states[-1], executor.task, gains)
+    if not math.isfinite(position_error):
+        return Executed(math.inf, math.inf, math.inf, math.inf)
     speeds = np.abs(scene.arm_qvel(evaluation.states)) / scene.velocity_limit  # to the end
-    return Executed(float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error)), float(speeds.max()),
+    return Executed(position_error, angle_error, float(speeds.max()),
                     scene.joint_range_excess(scene.arm_qpos(evaluation.states)))
 
 
@@ -192,7 +197,7 @@ class _Run:
         offset = self.log[-1].iteration + 1 if self.log else 0
         # a stage without the virtual force evaluates the plan as executed: it ends once that is at the goal
         goal = None if problem.cost.virtual_force else \
-            (lambda point: judge(problem, point).reaches(self.clock.settings))
+            (lambda point: judge(problem, point, self.clock.settings.tracking).reaches(self.clock.settings))
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
                                    self.stop, self.clock.report, f"{self.prefix}{name}",
                                    problem.cost.virtual_force, goal)

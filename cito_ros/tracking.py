@@ -4,6 +4,10 @@ joint positions and velocities with gravity (bias) compensation, no virtual forc
 ROS-free. The controller runs every simulation step: tau = clamp(kp (q_ref - q) + kd (qdot_ref -
 qdot)) + C^(q, qdot), where the clamp is the motor limit and C^ comes from the same compensated
 motors the planner uses (cito.compensated_motor). The gains are the settings' `tracking` section.
+
+After the last point the controller holds it at rest (`hold`), and a push is judged where the object
+is then (`rest_errors`): a plan may end with the object still sliding, and what the robot delivers is
+where it stops.
 """
 from __future__ import annotations
 
@@ -58,11 +62,39 @@ def offset_references(reference: JointReference, n_knots: int, timestep_s: float
 
 def offset_position_errors_m(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
                              gains: TrackingSettings, task, count: int, amplitude_rad: float, seed: int) -> list[float]:
-    """The task's final position errors (task.final_errors) of `reference` tracked with each of its
+    """The task's position errors at rest (rest_errors) of `reference` tracked with each of its
     offset_references."""
-    return [float(task.final_errors(track(simulator, initial_state, moved, gains))[0])
+    return [rest_errors(simulator, track(simulator, initial_state, moved, gains).final_state, task, gains)[0]
             for moved in offset_references(reference, simulator.n_knots, simulator.timestep_s, count, amplitude_rad,
                                            seed)]
+
+
+def hold(simulator: Simulator, state: np.ndarray, gains: TrackingSettings) -> np.ndarray:
+    """The full physics state after the controller holds the arm's joint positions of `state` at rest for
+    gains.hold_s (a joint trajectory controller past its last point), no virtual force; all NaN when
+    `state` is not finite or MuJoCo warns on the way (its automatic reset is no rest pose)."""
+    scene, model = simulator.scene, simulator.model
+    rested = np.full(simulator.nstate, np.nan)
+    if not np.all(np.isfinite(state)):
+        return rested
+    kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, state, FULL_PHYSICS)
+    held = data.qpos[scene.arm_qpos_adr].copy()
+    for _ in range(round(gains.hold_s / simulator.timestep_s)):
+        command = kp * (held - data.qpos[scene.arm_qpos_adr]) - kd * data.qvel[scene.arm_dof_adr]
+        data.ctrl[scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
+        mujoco.mj_step(model, data)
+    if not any(warning.number for warning in data.warning):
+        mujoco.mj_getState(model, data, rested, FULL_PHYSICS)
+    return rested
+
+
+def rest_errors(simulator: Simulator, state: np.ndarray, task, gains: TrackingSettings) -> tuple[float, float]:
+    """Position (m) and orientation (rad) error norms of the object against `task` once the arm has held
+    its joint positions of `state` (the end of an execution) for gains.hold_s: where the object ends."""
+    position_error, angle_error = task.pose_error(simulator.scene.object_qpos(hold(simulator, state, gains)))
+    return float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error))
 
 
 def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
