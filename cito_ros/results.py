@@ -49,7 +49,8 @@ class IterationLog:
     constraint_violation: float
     elapsed_s: float             # since the solve began
     stage: str                   # e.g. "start 1: discovery", "start 1: physical 2"
-    position_error_m: float      # the last evaluated point's final object position error (NaN if none)
+    position_error_m: float      # the last evaluated point's object position error: where the object comes to
+                                 # rest in a stage without the virtual force, at the horizon's end with it (NaN if none)
     virtual_force: bool          # whether that error is with the virtual force (the contact model's plan)
                                  # or executed without it
 
@@ -63,7 +64,7 @@ class StageRecord:
     iterations: int
     seconds: float               # the stage's wall clock: the four phases below
     cost: float                  # the stage's own cost at its end
-    position_error_m: float      # the stage's plan executed without the virtual force
+    position_error_m: float      # the stage's plan executed without the virtual force, at rest
     rollout_s: float             # simulating the solver's decisions and trials
     linearization_s: float       # the per-step linearizations (and knot-restart differences)
     solver_s: float              # the rest of the solve: backward passes, QPs, IPOPT, residuals

@@ -88,9 +88,11 @@ class IterationMonitor:
     def __init__(self, settings: SolverSettings, started: float, iteration_offset: int,
                  violation_tolerance: float, cancel: threading.Event | None,
                  callback: Callable[[IterationLog], None] | None, stage: str = "", virtual_force: bool = True,
-                 goal: Callable[[NlpPoint], bool] | None = None):
+                 goal: Callable[[NlpPoint], tuple[float, bool]] | None = None):
         self.settings, self.started, self.iteration_offset = settings, started, iteration_offset
-        self.goal = goal  # a point at which the stage has done its job (Status.GOAL_REACHED)
+        # a point's executed position error (logged instead of its rollout's) and whether the stage has
+        # done its job there (Status.GOAL_REACHED)
+        self.goal = goal
         self.stage, self.virtual_force = stage, virtual_force
         self.violation_tolerance = violation_tolerance
         self.cancel, self.callback = cancel, callback
@@ -101,6 +103,10 @@ class IterationMonitor:
                last_violation: float) -> Status | None:
         elapsed = time.perf_counter() - self.started
         error = last.position_error_m if last is not None and last.finite else math.nan
+        reached = False
+        if self.goal is not None and last is not None and last.finite:
+            error, reached = self.goal(last)
+            reached = reached and last_violation <= self.violation_tolerance
         entry = IterationLog(self.iteration_offset + iteration, cost, constraint_violation, elapsed, self.stage,
                              error, self.virtual_force)
         self.log.append(entry)
@@ -112,8 +118,7 @@ class IterationMonitor:
             self.callback(entry)
         if self.cancel is not None and self.cancel.is_set():
             return Status.CANCELLED
-        if self.goal is not None and last is not None and last.finite and last_violation <= self.violation_tolerance \
-                and self.goal(last):
+        if reached:
             return Status.GOAL_REACHED
         if elapsed > self.settings.time_limit_s:
             return Status.TIME_LIMIT

@@ -195,12 +195,14 @@ class _Run:
         solver: Solver = IpoptSolver(settings, self.curvature) if problem.n_constraints or kind == "ipopt" \
             else SOLVERS[kind](settings)
         offset = self.log[-1].iteration + 1 if self.log else 0
-        # a stage without the virtual force evaluates the plan as executed: it ends once that is at the goal
-        goal = None if problem.cost.virtual_force else \
-            (lambda point: judge(problem, point, self.clock.settings.tracking).reaches(self.clock.settings))
+        # a stage without the virtual force evaluates the plan as executed: its log shows where the object comes
+        # to rest, and it ends once that is at the goal
+        def goal(point) -> tuple[float, bool]:
+            executed = judge(problem, point, self.clock.settings.tracking)
+            return executed.position_error_m, executed.reaches(self.clock.settings)
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
                                    self.stop, self.clock.report, f"{self.prefix}{name}",
-                                   problem.cost.virtual_force, goal)
+                                   problem.cost.virtual_force, None if problem.cost.virtual_force else goal)
         phases, began = problem.simulator.clock.read(), time.perf_counter()
         outcome = solver.solve(problem, start, lower, upper, monitor)
         phases, solved = problem.simulator.clock.read() - phases, time.perf_counter()

@@ -221,6 +221,8 @@ def test_a_start_ends_once_its_executed_plan_is_at_the_goal_with_margin(solved, 
     assert last.status is Status.GOAL_REACHED and "physical" in last.name
     assert result.metrics.position_error_m < settings.stages.goal_margin * settings.task.success_position_error_m
     assert sum(stage.status is Status.GOAL_REACHED for stage in result.stages) == 1
+    # its iterations log (and the action's feedback shows) the executed error where the cube comes to rest
+    assert result.iteration_log[-1].position_error_m == result.metrics.position_error_m
 
 
 def test_an_execution_is_judged_where_the_object_comes_to_rest(settings):
