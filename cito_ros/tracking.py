@@ -80,10 +80,9 @@ def hold(simulator: Simulator, state: np.ndarray, gains: TrackingSettings) -> np
     kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
     data = mujoco.MjData(model)
     mujoco.mj_setState(model, data, state, FULL_PHYSICS)
-    held = data.qpos[scene.arm_qpos_adr].copy()
+    held, at_rest = data.qpos[scene.arm_qpos_adr].copy(), np.zeros(len(scene.arm_dof_adr))
     for _ in range(round(gains.hold_s / simulator.timestep_s)):
-        command = kp * (held - data.qpos[scene.arm_qpos_adr]) - kd * data.qvel[scene.arm_dof_adr]
-        data.ctrl[scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
+        data.ctrl[scene.motor_ids] = _torques(scene, data, kp, kd, held, at_rest)
         mujoco.mj_step(model, data)
     if not any(warning.number for warning in data.warning):
         mujoco.mj_getState(model, data, rested, FULL_PHYSICS)
@@ -111,12 +110,17 @@ def track(simulator: Simulator, initial_state: np.ndarray, reference: JointRefer
     for warning in data.warning:
         warning.number = 0
     for t in range(steps):
-        q, qdot = data.qpos[scene.arm_qpos_adr], data.qvel[scene.arm_dof_adr]
-        command = kp * (reference.q[t] - q) + kd * (reference.qdot[t] - qdot)
-        controls[t, scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
+        controls[t, scene.motor_ids] = _torques(scene, data, kp, kd, reference.q[t], reference.qdot[t])
         data.ctrl[:] = controls[t]
         mujoco.mj_step(model, data)
         mujoco.mj_getState(model, data, states[t], FULL_PHYSICS)
         sensordata[t] = data.sensordata
     warnings = {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
     return simulator.trajectory(initial_state, states, sensordata, controls, warnings)
+
+
+def _torques(scene, data: mujoco.MjData, kp: np.ndarray, kd: np.ndarray, q_ref: np.ndarray,
+             qdot_ref: np.ndarray) -> np.ndarray:
+    """The controller's motor torques at data's state for one reference point, clamped to the motor limits."""
+    command = kp * (q_ref - data.qpos[scene.arm_qpos_adr]) + kd * (qdot_ref - data.qvel[scene.arm_dof_adr])
+    return np.clip(command, -scene.torque_limit, scene.torque_limit)
