@@ -220,9 +220,8 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
                 for fraction in np.linspace(-1.0, 1.0, points):
                     shift = fraction * reference_amplitude_rad
                     reference = tracking.JointPath(path.q + shift * direction_q, path.qdot + shift * direction_qdot)
-                    tracked.append(tracking.rest_errors(
-                        simulator, tracking.track(simulator, executor.initial_state, reference,
-                                                  settings.tracking).final_state, executor.task, settings.tracking)[0])
+                    tracked.append(tracking.tracked_rest_error_m(simulator, executor.initial_state, reference,
+                                                                 executor.task, settings.tracking))
                     evaluation = executor.evaluate(executor.with_torques(
                         torques + fraction * torque_amplitude_Nm * direction_torque))
                     open_loop.append(tracking.rest_errors(simulator, evaluation.states[-1], executor.task,

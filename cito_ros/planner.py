@@ -100,8 +100,7 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         physical_inaccuracy_Ns=float(simulator.timestep_s * np.sum(planned.gamma_N)),
         max_joint_speed_ratio=speed_ratio,
         joint_range_excess_rad=range_excess,
-        final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(
-            executor.evaluate(executor.with_torques(outcome.torques)).states[-1])[:3])),
+        final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(trajectory.final_state)[:3])),
         solve_time_s=outcome.solve_time_s,
         setup_time_s=outcome.setup_s,
         rollout_time_s=sum(record.rollout_s for record in outcome.stages),

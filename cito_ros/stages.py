@@ -135,11 +135,10 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
     if not math.isfinite(executed.position_error_m):
         return executed
     simulator, trajectory = executor.simulator, executor.trajectory(evaluation.z)
-    tracked = tracking.track(simulator, executor.initial_state, trajectory, gains)
     offset_errors = tracking.offset_position_errors_m(simulator, executor.initial_state, trajectory, gains,
                                                       executor.task, gains.reference_offsets,
                                                       gains.reference_offset_rad, seed=12345)  # the same for every plan
-    tracked_error = tracking.rest_errors(simulator, tracked.final_state, executor.task, gains)[0]
+    tracked_error = tracking.tracked_rest_error_m(simulator, executor.initial_state, trajectory, executor.task, gains)
     return dataclasses.replace(executed, tracked_position_error_m=tracked_error,
                                offset_tracked_error_m=max(offset_errors, default=math.nan))
 

@@ -62,9 +62,9 @@ def offset_references(reference: JointReference, n_knots: int, timestep_s: float
 
 def offset_position_errors_m(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
                              gains: TrackingSettings, task, count: int, amplitude_rad: float, seed: int) -> list[float]:
-    """The task's position errors at rest (rest_errors) of `reference` tracked with each of its
+    """The task's position errors at rest (tracked_rest_error_m) of `reference` tracked with each of its
     offset_references."""
-    return [rest_errors(simulator, track(simulator, initial_state, moved, gains).final_state, task, gains)[0]
+    return [tracked_rest_error_m(simulator, initial_state, moved, task, gains)
             for moved in offset_references(reference, simulator.n_knots, simulator.timestep_s, count, amplitude_rad,
                                            seed)]
 
@@ -94,6 +94,12 @@ def rest_errors(simulator: Simulator, state: np.ndarray, task, gains: TrackingSe
     its joint positions of `state` (the end of an execution) for gains.hold_s: where the object ends."""
     position_error, angle_error = task.pose_error(simulator.scene.object_qpos(hold(simulator, state, gains)))
     return float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error))
+
+
+def tracked_rest_error_m(simulator: Simulator, initial_state: np.ndarray, reference: JointReference, task,
+                         gains: TrackingSettings) -> float:
+    """The position error at rest (rest_errors) of `reference` tracked from initial_state (track)."""
+    return rest_errors(simulator, track(simulator, initial_state, reference, gains).final_state, task, gains)[0]
 
 
 def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
