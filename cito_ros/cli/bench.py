@@ -242,8 +242,9 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command == "figures":
         from cito_ros import figures as figure_module
 
-        bar = progress_bar(5, "figures", "figure")
+        bar = progress_bar(len(figure_module.RUNS) + 1, "figures", "step")  # each plan, then the drawing
         paths = figure_module.figures(args.out, progress=lambda d, n: advance(bar, d, n))
+        advance(bar, len(figure_module.RUNS) + 1)
         bar.close()
         print("written: " + ", ".join(str(p) for p in paths))
     return 0
