@@ -17,12 +17,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from cito_ros import tracking  # noqa: E402
 from cito_ros.contact_models import SmoothContactModel  # noqa: E402
 from cito_ros.planner import plan_push  # noqa: E402
 from cito_ros.results import PlanResult  # noqa: E402
 from cito_ros.settings import Settings, load_settings  # noqa: E402
-from cito_ros.simulator import FULL_PHYSICS, Simulator  # noqa: E402
+from cito_ros.simulator import FULL_PHYSICS  # noqa: E402
 
 COLORS = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
 MODELS = ("cccm", "scm", "vscm")
@@ -47,14 +46,6 @@ def snapshot_times(result: PlanResult) -> list[float]:
     return [0.005, float(times[first]), float((times[first] + trajectory.time_s[-1]) / 2), float(trajectory.time_s[-1])]
 
 
-def rest_state(result: PlanResult, settings: Settings) -> np.ndarray:
-    """The physics state where the returned plan's execution is judged: its end, then the arm held
-    (tracking.hold)."""
-    knot_period = float(result.knot_time_s[1] - result.knot_time_s[0])
-    simulator = Simulator(result.scene, float(result.knot_time_s[-1]), knot_period)
-    return tracking.hold(simulator, result.trajectory.final_state, settings.tracking)
-
-
 def _draw_goal(scene: mujoco.MjvScene, result: PlanResult) -> None:
     """The goal pose as a translucent box the size of the object."""
     if scene.ngeom >= scene.maxgeom:
@@ -69,7 +60,7 @@ def _draw_goal(scene: mujoco.MjvScene, result: PlanResult) -> None:
 
 def render_snapshots(result: PlanResult, settings: Settings, width: int = 480,
                      height: int = 360) -> list[tuple[str, np.ndarray]]:
-    """The returned plan executed without the virtual force at snapshot_times and at rest (rest_state),
+    """The returned plan executed without the virtual force at snapshot_times and at rest (its `rest`),
     each picture with its label, the goal drawn as a translucent box."""
     scene = result.scene
     model = scene.model
@@ -102,9 +93,8 @@ def render_snapshots(result: PlanResult, settings: Settings, width: int = 480,
             data.qpos[obj:obj + 3] = trajectory.object_position_m[step]
             data.qpos[obj + 3:obj + 7] = trajectory.object_quaternion[step]
             picture(f"t = {1000 * t:.0f} ms")
-        rested = rest_state(result, settings)
-        if np.all(np.isfinite(rested)):
-            mujoco.mj_setState(model, data, rested, FULL_PHYSICS)
+        if result.rest is not None and not result.rest.warnings:
+            mujoco.mj_setState(model, data, result.rest.final_state, FULL_PHYSICS)
             picture(f"at rest ({1000 * settings.tracking.hold_s:.0f} ms on)")
     finally:
         renderer.close()

@@ -14,7 +14,8 @@ thread, one plan at a time: a goal that arrives meanwhile is rejected (the reaso
 
 Topics: /cito/joint_trajectory, /cito/object_path, /cito/plan_result (transient local);
 /joint_states, /cito/scene_markers, /cito/contact_forces, /cito/object_pose (one message per
-simulation step, stamped along the planned horizon); /cito/plan_request, /cito/progress. Each
+simulation step, stamped along the planned horizon and the hold after it, where the object comes to
+rest); /cito/plan_request, /cito/progress. Each
 plan is recorded as a rosbag2 (MCAP) bag under node.bag_directory. SIGINT/SIGTERM cancel a
 running solve, finish its bag and exit.
 """
@@ -240,10 +241,10 @@ class PlannerNode(Node):
                 self._emit(bag, "/cito/contact_forces", force, step_ns)
             for pose, state_ns in zip(messages.object_poses, state_stamps):
                 self._emit(bag, "/cito/object_pose", pose, state_ns)
-            for joints, state_ns in zip(ros_markers.joint_states(result.trajectory, state_stamps, self.frame_id),
-                                        state_stamps):
+            motion = result.executed_motion  # the horizon, then the arm held where the object comes to rest
+            for joints, state_ns in zip(ros_markers.joint_states(motion, state_stamps, self.frame_id), state_stamps):
                 self._emit(bag, "/joint_states", joints, state_ns)
-            for markers, state_ns in zip(ros_markers.scene_markers(result.scene, result.trajectory, state_stamps,
+            for markers, state_ns in zip(ros_markers.scene_markers(result.scene, motion, state_stamps,
                                                                    self.frame_id), state_stamps):
                 self._emit(bag, "/cito/scene_markers", markers, state_ns)
             self.get_logger().info(f"plan {request_id}: {messages.result.message} ({result.metrics.solve_time_s:.2f} s, "

@@ -79,10 +79,11 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
     tracked = tracking.track(simulator, discovery.initial_state, trajectory, settings.tracking)
 
     # where the object comes to rest once the arm holds its last position: a plan may end with it sliding
-    position_error, orientation_error = tracking.rest_errors(simulator, trajectory.final_state, task, settings.tracking)
+    rest = tracking.held_motion(simulator, trajectory.final_state, settings.tracking)
+    tracked_rest = tracking.held_motion(simulator, tracked.final_state, settings.tracking)
+    position_error, orientation_error = tracking.errors_at_rest(rest, task)
     planned_position_error, planned_orientation_error = task.final_errors(planned)  # the paper's, at T
-    tracked_position_error, tracked_orientation_error = tracking.rest_errors(simulator, tracked.final_state, task,
-                                                                             settings.tracking)
+    tracked_position_error, tracked_orientation_error = tracking.errors_at_rest(tracked_rest, task)
     speed_ratio = float(np.max(np.abs(trajectory.qdot) / discovery.scene.velocity_limit))
     range_excess = discovery.scene.joint_range_excess(trajectory.q)
     status = outcome.status
@@ -127,6 +128,8 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         trajectory=trajectory,
         planned=planned,
         tracked=tracked,
+        rest=rest,
+        tracked_rest=tracked_rest,
         metrics=metrics,
         iteration_log=outcome.log,
         stages=outcome.stages,

@@ -151,11 +151,20 @@ class PlanResult:
     trajectory: Trajectory           # the returned plan executed without the virtual force (the robot's motion)
     planned: Trajectory              # the contact model's plan, with the virtual force
     tracked: Trajectory              # trajectory's joint motion executed by a PD joint trajectory controller
+    rest: Trajectory | None          # trajectory continued with the arm held at its last position for
+                                     # tracking.hold_s: where the metrics judge it (None: it ended non-finite)
+    tracked_rest: Trajectory | None  # the same hold after `tracked`
     metrics: Metrics
     iteration_log: tuple[IterationLog, ...]
     stages: tuple[StageRecord, ...]
     derivative_info: dict[str, int]
     scene: Scene                     # where it was planned: the object's start pose, the geometry to draw
+
+    @property
+    def executed_motion(self) -> Trajectory:
+        """What the robot does: the returned plan executed, then the arm held (`rest`), where the object
+        ends; the recorded and published motion."""
+        return self.trajectory.followed_by(self.rest)
 
     @property
     def status(self) -> Status:
@@ -178,9 +187,9 @@ class PlanResult:
             "object_start_position_m": self.trajectory.object_position_m[0].tolist(),
             "object_start_yaw_rad": self.scene.config.object.yaw_rad,
             **self.metrics.as_dict(),
-            "final_object_position_m": self.trajectory.object_position_m[-1].tolist(),
+            "final_object_position_m": self.executed_motion.object_position_m[-1].tolist(),  # at rest
             "planned_object_position_m": self.planned.object_position_m[-1].tolist(),
-            "tracked_object_position_m": self.tracked.object_position_m[-1].tolist(),
+            "tracked_object_position_m": self.tracked.followed_by(self.tracked_rest).object_position_m[-1].tolist(),
             "warnings": self.trajectory.warnings,
             "derivatives": self.derivative_info,
             "stages": [record.as_dict() for record in self.stages],
@@ -189,7 +198,9 @@ class PlanResult:
     def finite(self) -> bool:
         """No NaN or Inf in any array or metric of the plan."""
         arrays = [self.knot_torques_Nm, self.knot_contact_control, *self.knot_variables.values()]
-        for trajectory in (self.trajectory, self.planned, self.tracked):
+        for trajectory in (self.trajectory, self.planned, self.tracked, self.rest, self.tracked_rest):
+            if trajectory is None:
+                continue
             arrays += [value for value in vars(trajectory).values() if isinstance(value, np.ndarray)]
         numbers = [v for _, v in self.metrics.items() if isinstance(v, float)]
         return all(bool(np.all(np.isfinite(a))) for a in arrays) and bool(np.all(np.isfinite(numbers)))

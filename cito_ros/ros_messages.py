@@ -118,7 +118,7 @@ def response_status(result: PlanResult, settings: Settings) -> tuple[int, str]:
         return Response.STATUS_CANCELLED, "the solve was cancelled; the best iterate is returned"
     if status is Status.NUMERICAL_ERROR:
         return Response.STATUS_NUMERICAL_ERROR, f"the planned motion is not finite or raised MuJoCo warnings " \
-                                                f"{result.trajectory.warnings}"
+                                                f"{result.executed_motion.warnings}"
     if status is Status.SOLVER_FAILED:
         return Response.STATUS_SOLVER_FAILED, "IPOPT failed; the best iterate is returned"
     m = result.metrics
@@ -192,7 +192,8 @@ def progress_msg(entry: IterationLog, request_id: int, contact_model: str, stamp
 
 @dataclass(frozen=True)
 class PlanMessages:
-    """Everything a finished plan publishes; per-step messages are stamped along the horizon."""
+    """Everything a finished plan publishes; per-step messages are stamped along the horizon and the hold
+    after it."""
 
     trajectory: JointTrajectory
     contact_forces: list[ContactForce]
@@ -204,7 +205,9 @@ class PlanMessages:
 
 def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: str, bag_path: str,
                   target_orientation: np.ndarray, settings: Settings) -> PlanMessages:
-    """Build the messages of a plan whose horizon starts at stamp_ns."""
+    """Build the messages of a plan whose horizon starts at stamp_ns: the joint trajectory over the horizon
+    (what a robot's controller is sent), the per-step messages over the whole motion (result.executed_motion:
+    the horizon, then the arm held where the object comes to rest)."""
     trajectory = result.trajectory
     header = Header(stamp=time_msg(stamp_ns), frame_id=frame_id)
     steps = len(trajectory.gamma_N)
@@ -215,6 +218,8 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
         joint_trajectory.points.append(JointTrajectoryPoint(
             positions=trajectory.q[t].tolist(), velocities=trajectory.qdot[t].tolist(), effort=effort.tolist(),
             time_from_start=duration_msg(t * dt)))
+    trajectory = result.executed_motion
+    steps = len(trajectory.gamma_N)
     stamps = [stamp_ns + int(round(t * dt * 1e9)) for t in range(steps + 1)]
     forces = []
     for t in range(steps):

@@ -47,13 +47,30 @@ class Trajectory:
     contact_count: np.ndarray          # (T,) number of robot-object contacts
     ee_velocity_m_s: np.ndarray        # (T, 3) plate-centre velocity, world
     warnings: dict[str, int] = field(default_factory=dict)  # MuJoCo warnings raised during the rollout
-    final_state: np.ndarray | None = None  # the full physics state at t = T, to simulate on from (tracking.hold)
+    final_state: np.ndarray | None = None  # the full physics state at t = T, to simulate on from (tracking.held_motion)
 
     @property
     def finite(self) -> bool:
         arrays = [self.q, self.qdot, self.object_position_m, self.object_quaternion, self.torque_Nm,
                   self.gamma_N, self.signed_distance_m, self.contact_force_N, self.ee_velocity_m_s]
         return all(bool(np.all(np.isfinite(a))) for a in arrays)
+
+    def followed_by(self, continuation: "Trajectory | None") -> "Trajectory":
+        """This motion, then `continuation` (a rollout from this one's final state, as tracking.held_motion):
+        one Trajectory over both, the continuation's first state (this one's last) once."""
+        if continuation is None:
+            return self
+        n_states = len(self.time_s)
+        joined = {}
+        for name, value in vars(self).items():
+            other = getattr(continuation, name)
+            if name == "warnings":
+                joined[name] = {key: value.get(key, 0) + other.get(key, 0) for key in {**value, **other}}
+            elif name == "final_state" or value is None:
+                joined[name] = other
+            else:  # arrays over states repeat the joint; arrays over steps do not
+                joined[name] = np.concatenate([value, other[1:] if len(value) == n_states else other])
+        return Trajectory(**joined)
 
 
 class Simulator:

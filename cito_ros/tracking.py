@@ -5,12 +5,13 @@ ROS-free. The controller runs every simulation step: tau = clamp(kp (q_ref - q) 
 qdot)) + C^(q, qdot), where the clamp is the motor limit and C^ comes from the same compensated
 motors the planner uses (cito.compensated_motor). The gains are the settings' `tracking` section.
 
-After the last point the controller holds it at rest (`hold`), and a push is judged where the object
-is then (`rest_errors`): a plan may end with the object still sliding, and what the robot delivers is
+After the last point the controller holds it at rest (`held_motion`), and a push is judged where the
+object is then (`rest_errors`): a plan may end with the object still sliding, and what the robot delivers is
 where it stops.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -69,31 +70,43 @@ def offset_position_errors_m(simulator: Simulator, initial_state: np.ndarray, re
                                            seed)]
 
 
-def hold(simulator: Simulator, state: np.ndarray, gains: TrackingSettings) -> np.ndarray:
-    """The full physics state after the controller holds the arm's joint positions of `state` at rest for
-    gains.hold_s (a joint trajectory controller past its last point), no virtual force; all NaN when
-    `state` is not finite or MuJoCo warns on the way (its automatic reset is no rest pose)."""
-    scene, model = simulator.scene, simulator.model
-    rested = np.full(simulator.nstate, np.nan)
+def held_motion(simulator: Simulator, state: np.ndarray, gains: TrackingSettings) -> Trajectory | None:
+    """The execution continued from `state` (where it ends) with the controller holding the arm's joint
+    positions of `state` at rest for gains.hold_s (a joint trajectory controller past its last point), no
+    virtual force; None when `state` is not finite. Its warnings are MuJoCo's on the way."""
     if not np.all(np.isfinite(state)):
-        return rested
+        return None
+    scene, model = simulator.scene, simulator.model
     kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
     data = mujoco.MjData(model)
     mujoco.mj_setState(model, data, state, FULL_PHYSICS)
     held, at_rest = data.qpos[scene.arm_qpos_adr].copy(), np.zeros(len(scene.arm_dof_adr))
-    for _ in range(round(gains.hold_s / simulator.timestep_s)):
-        data.ctrl[scene.motor_ids] = _torques(scene, data, kp, kd, held, at_rest)
+    steps = round(gains.hold_s / simulator.timestep_s)
+    controls = np.zeros((steps, model.nu))
+    states = np.empty((steps, simulator.nstate))
+    sensordata = np.empty((steps, model.nsensordata))
+    for t in range(steps):
+        controls[t, scene.motor_ids] = _torques(scene, data, kp, kd, held, at_rest)
+        data.ctrl[:] = controls[t]
         mujoco.mj_step(model, data)
-    if not any(warning.number for warning in data.warning):
-        mujoco.mj_getState(model, data, rested, FULL_PHYSICS)
-    return rested
+        mujoco.mj_getState(model, data, states[t], FULL_PHYSICS)
+        sensordata[t] = data.sensordata
+    warnings = {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
+    return simulator.trajectory(state, states, sensordata, controls, warnings)
+
+
+def errors_at_rest(held: Trajectory | None, task) -> tuple[float, float]:
+    """Position (m) and orientation (rad) error norms of the object against `task` at the end of a
+    held_motion: where the object ends. NaN without one, or when MuJoCo warned on the way (its automatic
+    reset is no rest pose)."""
+    if held is None or held.warnings:
+        return math.nan, math.nan
+    return task.final_errors(held)
 
 
 def rest_errors(simulator: Simulator, state: np.ndarray, task, gains: TrackingSettings) -> tuple[float, float]:
-    """Position (m) and orientation (rad) error norms of the object against `task` once the arm has held
-    its joint positions of `state` (the end of an execution) for gains.hold_s: where the object ends."""
-    position_error, angle_error = task.pose_error(simulator.scene.object_qpos(hold(simulator, state, gains)))
-    return float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error))
+    """errors_at_rest of the execution that ends at `state`, continued by held_motion."""
+    return errors_at_rest(held_motion(simulator, state, gains), task)
 
 
 def tracked_rest_error_m(simulator: Simulator, initial_state: np.ndarray, reference: JointReference, task,

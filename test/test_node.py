@@ -46,6 +46,9 @@ LATCHED = {"/cito/joint_trajectory", "/cito/object_path", "/cito/plan_result"}
 HORIZON_STEPS = {round(h / load_settings().scene.timestep_s) for h in load_settings().round_horizons_s}
 
 
+HOLD_STEPS = round(load_settings().tracking.hold_s / load_settings().scene.timestep_s)
+
+
 def steps(response) -> int:
     """The simulation steps of a plan: one of the horizons its starts are solved at."""
     end = response.trajectory.points[-1].time_from_start
@@ -175,7 +178,7 @@ def test_a_plan_for_each_contact_model(plans, model):
     m = response.metrics
     assert m.success and m.position_error_m < 0.02 and m.solve_time_s > 0
     assert m.max_joint_speed_ratio <= 1.05
-    assert len(response.trajectory.points) == steps(response) + 1 and len(response.contact_forces) == steps(response)
+    assert len(response.trajectory.points) == steps(response) + 1 and len(response.contact_forces) == steps(response) + HOLD_STEPS
     assert response.trajectory.joint_names == JOINTS
     assert response.stages and sum(stage.iterations for stage in response.stages) == m.iterations
     assert Path(response.bag_path, "metadata.yaml").is_file()
@@ -192,7 +195,7 @@ def test_the_service_plan_is_the_library_plan(plans):
 @pytest.mark.parametrize("model", ["cccm", "vscm"])
 def test_every_topic_is_received(plans, model):
     response, received = plans[model]
-    n_steps = steps(response)
+    n_steps = steps(response) + HOLD_STEPS  # the horizon, then the arm held where the cube comes to rest
     assert len(received["/cito/plan_request"]) == 1 and received["/cito/plan_request"][0].contact_model == model
     assert len(received["/cito/progress"]) >= 1
     assert len(received["/cito/contact_forces"]) == n_steps and len(received["/cito/object_pose"]) == n_steps + 1
@@ -201,6 +204,11 @@ def test_every_topic_is_received(plans, model):
         response.trajectory.points[-1].positions.tolist()
     assert len(received["/cito/object_path"][-1].poses) == n_steps + 1
     result = received["/cito/plan_result"][-1]
+    # the last pose recorded is where the executed error is measured
+    assert result.final_object_pose == received["/cito/object_pose"][-1].pose
+    p, target = result.final_object_pose.position, result.target_pose.position
+    assert math.dist((p.x, p.y, p.z), (target.x, target.y, target.z)) == pytest.approx(
+        response.metrics.position_error_m, abs=1e-12)
     assert result.metrics == response.metrics and result.bag_path == response.bag_path
     assert result.stages == response.stages
     assert result.header.frame_id == "world"
@@ -257,12 +265,16 @@ def test_the_bag_matches_the_response(plans, reader, model):
         np.testing.assert_array_equal(np.asarray(stored.effort), np.asarray(sent.effort))
     forces = bag["/cito/contact_forces"]
     assert [m.gamma_n for _, m in forces] == [m.gamma_n for m in response.contact_forces]
-    # stamped along the planned horizon: the log times are the message stamps, 5 ms apart
+    # stamped along the planned horizon and the hold: the log times are the message stamps, 5 ms apart
     log_times = np.array([t for t, _ in forces])
     np.testing.assert_array_equal(log_times, [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in forces])
     np.testing.assert_allclose(np.diff(log_times), 5e6, atol=1)
-    assert len(bag["/cito/object_pose"]) == steps(response) + 1
+    assert len(bag["/cito/object_pose"]) == steps(response) + HOLD_STEPS + 1
     (_, result), = bag["/cito/plan_result"]
+    # the bag ends where the cube comes to rest: its last pose is the one the executed error measures
+    p, target = bag["/cito/object_pose"][-1][1].pose.position, result.target_pose.position
+    assert math.dist((p.x, p.y, p.z), (target.x, target.y, target.z)) == pytest.approx(
+        response.metrics.position_error_m, abs=1e-12)
     assert [stage.name for stage in result.stages] == [stage.name for stage in response.stages]
     assert result.metrics.position_error_m == response.metrics.position_error_m
     assert result.metrics.physical_inaccuracy_ns == response.metrics.physical_inaccuracy_ns
@@ -279,7 +291,7 @@ def test_the_bag_draws_the_arm_and_the_cube_at_every_step(plans, reader):
     bag = reader(Path(response.bag_path))
     joints, markers, poses = bag["/joint_states"], bag["/cito/scene_markers"], bag["/cito/object_pose"]
     n_steps = steps(response)
-    assert len(joints) == len(markers) == n_steps + 1
+    assert len(joints) == len(markers) == n_steps + HOLD_STEPS + 1
     assert [t for t, _ in joints] == [t for t, _ in markers] == [t for t, _ in poses]
     settings = load_settings()
     scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)

@@ -135,10 +135,20 @@ def test_result_metrics_are_those_of_the_execution(discovered, scenes, settings)
     simulator = build_problem(settings, PushRequest("vscm", 7)).problem.simulator
 
     def at_rest(trajectory):  # where the object is once the arm has held its last position
-        held = tracking.hold(simulator, trajectory.final_state, settings.tracking)
+        held = tracking.held_motion(simulator, trajectory.final_state, settings.tracking).final_state
         return np.linalg.norm(scenes["vscm"].object_qpos(held)[:3] - result.target_position_m)
 
     assert m.position_error_m == pytest.approx(at_rest(result.trajectory))
+    # the recorded motion goes on from the horizon's end to where the object is judged
+    motion, hold_steps = result.executed_motion, round(settings.tracking.hold_s / settings.scene.timestep_s)
+    assert len(motion.time_s) == len(result.trajectory.time_s) + hold_steps
+    assert len(motion.gamma_N) == len(result.trajectory.gamma_N) + hold_steps
+    np.testing.assert_array_equal(motion.q[:len(result.trajectory.q)], result.trajectory.q)
+    assert motion.time_s[-1] == pytest.approx(result.trajectory.time_s[-1] + settings.tracking.hold_s)
+    assert m.position_error_m == np.linalg.norm(motion.object_position_m[-1] - result.target_position_m)
+    assert result.summary()["final_object_position_m"] == motion.object_position_m[-1].tolist()
+    assert m.tracked_position_error_m == np.linalg.norm(np.asarray(result.summary()["tracked_object_position_m"])
+                                                       - result.target_position_m)
     planned = result.planned.object_position_m[-1]  # the paper's criterion: at the end of the horizon
     assert m.planned_position_error_m == pytest.approx(np.linalg.norm(planned - result.target_position_m))
     assert m.tracked_position_error_m == pytest.approx(at_rest(result.tracked))
@@ -231,7 +241,7 @@ def test_an_execution_is_judged_where_the_object_comes_to_rest(settings):
     problem = build_problem(settings, PushRequest("vscm", 7)).problem
     simulator, scene, task = problem.simulator, problem.scene, problem.task
     start = scene.object_qpos(problem.initial_state)[:3]
-    resting = tracking.hold(simulator, problem.initial_state, settings.tracking)
+    resting = tracking.held_motion(simulator, problem.initial_state, settings.tracking).final_state
     assert np.linalg.norm(scene.object_qpos(resting)[:3] - start) < 1e-5  # at rest, it stays
     model = scene.model
     data = mujoco.MjData(model)
@@ -239,7 +249,7 @@ def test_an_execution_is_judged_where_the_object_comes_to_rest(settings):
     data.qvel[scene.object_dof_adr] = 0.5  # sliding along +x, away from the arm
     sliding = np.empty_like(problem.initial_state)
     mujoco.mj_getState(model, data, sliding, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    stopped = tracking.hold(simulator, sliding, settings.tracking)
+    stopped = tracking.held_motion(simulator, sliding, settings.tracking).final_state
     travel_m = scene.object_qpos(stopped)[0] - start[0]
     assert travel_m == pytest.approx(0.5 ** 2 / (2 * 0.5 * 9.81), rel=0.3)  # v^2 / (2 mu g), mu = 0.5
     assert np.linalg.norm(scene.object_qvel(stopped)[:3]) < 1e-3

@@ -105,7 +105,7 @@ def _call(args) -> int:
         print(f"  joint speeds       {m.max_joint_speed_ratio:8.2f} of the limits at most")
         print(f"  solve time         {m.solve_time_s:8.2f} s ({m.iterations} iterations; "
               f"round trip {time.monotonic() - started:.2f} s)")
-        print(f"  trajectory         {len(r.trajectory.points)} points, {len(r.contact_forces)} contact samples")
+        print(f"  trajectory         {len(r.trajectory.points)} points, {len(r.contact_forces)} contact samples (with the hold after it)")
         print(f"  bag                {r.bag_path}")
         return 0
     finally:

@@ -24,11 +24,12 @@ INVALID_REQUEST = "invalid_request"
 def print_summary(result: PlanResult) -> None:
     m = result.metrics
     target = ", ".join(f"{v:.3f}" for v in result.target_position_m[:2])
-    final = ", ".join(f"{v:.3f}" for v in result.trajectory.object_position_m[-1][:2])
+    motion = result.executed_motion
+    final = ", ".join(f"{v:.3f}" for v in motion.object_position_m[-1][:2])
     print(f"contact model      {result.contact_model} (beta = {result.beta}, initial distance {result.initial_distance_m:.3f} m)")
     print(f"status             {m.status.value}, {'SUCCESS' if m.success else 'task not achieved'} "
           f"({m.iterations} iterations, {m.solve_time_s:.2f} s)")
-    print(f"object             ({final}) m executed, goal ({target}) m, yaw {result.target_yaw_rad:.3f} rad")
+    print(f"object             ({final}) m executed, at rest, goal ({target}) m, yaw {result.target_yaw_rad:.3f} rad")
     print(f"executed error     {m.position_error_m * 100:7.2f} cm, {m.orientation_error_rad:.4f} rad "
           f"(virtual force off, as on the robot)")
     print(f"tracked error      {m.tracked_position_error_m * 100:7.2f} cm, {m.tracked_orientation_error_rad:.4f} rad "
@@ -37,8 +38,8 @@ def print_summary(result: PlanResult) -> None:
           f"(contact model, with the virtual force)")
     print(f"joint speeds       {m.max_joint_speed_ratio:7.2f} of the limits at most")
     print(f"physical inacc.    {m.physical_inaccuracy_Ns:7.4f} N s (integral of the planned virtual force)")
-    if result.trajectory.warnings:
-        print(f"MuJoCo warnings    {result.trajectory.warnings}")
+    if motion.warnings:
+        print(f"MuJoCo warnings    {motion.warnings}")
 
 
 def main(argv: list[str] | None = None) -> int:
