@@ -1,5 +1,7 @@
 """Pure-Python implementation of the state-dependent forces of eq. (2): the test
-oracle of the native engine plugins, and the baseline of `cito-bench rollout`.
+oracle of the native engine plugins, and the baseline of `cito-bench rollout`;
+and of the PD joint trajectory controller (`pd_motion`), the oracle of the
+native tracking.
 
     tau = u + C^(q, qdot) - J_c^T lambda_c,   lambda_c = gamma n on the object,
                                                -gamma n on the robot.
@@ -18,7 +20,8 @@ import mujoco
 import numpy as np
 
 from cito_ros.scene import Scene
-from cito_ros.simulator import Simulator, Trajectory
+from cito_ros.settings import TrackingSettings
+from cito_ros.simulator import Simulator, Trajectory, warning_counts
 
 
 @dataclass(frozen=True)
@@ -76,4 +79,26 @@ def rollout(simulator: Simulator, oracle_scene: Scene, initial_state: np.ndarray
         sensordata[step] = data.sensordata
         mujoco.mj_getState(model, data, states[step], mujoco.mjtState.mjSTATE_FULLPHYSICS)
     warnings = {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
+    return simulator.trajectory(initial_state, states, sensordata, controls, warnings)
+
+
+def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray, qdot_ref: np.ndarray,
+              gains: TrackingSettings) -> Trajectory:
+    """tracking.pd_motion (the joint trajectory controller, natively cito_track) in Python, step by step."""
+    scene, model = simulator.scene, simulator.model
+    kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, initial_state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    steps = len(q_ref)
+    controls = np.zeros((steps, model.nu))
+    states = np.empty((steps, simulator.nstate))
+    sensordata = np.empty((steps, model.nsensordata))
+    for t in range(steps):
+        command = kp * (q_ref[t] - data.qpos[scene.arm_qpos_adr]) + kd * (qdot_ref[t] - data.qvel[scene.arm_dof_adr])
+        controls[t, scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
+        data.ctrl[:] = controls[t]
+        mujoco.mj_step(model, data)
+        mujoco.mj_getState(model, data, states[t], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        sensordata[t] = data.sensordata
+    warnings = warning_counts(np.array([warning.number for warning in data.warning]))
     return simulator.trajectory(initial_state, states, sensordata, controls, warnings)

@@ -218,7 +218,7 @@ class Simulator:
                                       np.ascontiguousarray(lower, dtype=float), np.ascontiguousarray(upper, dtype=float),
                                       np.ascontiguousarray(actuators, dtype=np.int32), trials, states, sensordata,
                                       warnings)
-        return [(trials[i], states[i], sensordata[i], _warning_counts(warnings[i])) for i in range(n)]
+        return [(trials[i], states[i], sensordata[i], warning_counts(warnings[i])) for i in range(n)]
 
     # ------------------------------------------------------------------ outputs
 
@@ -260,9 +260,9 @@ def _clear_warnings(data: mujoco.MjData) -> None:
 
 
 def _warnings(datas: list[mujoco.MjData]) -> dict[str, int]:
-    return _warning_counts(np.sum([[w.number for w in data.warning] for data in datas], axis=0))
+    return warning_counts(np.sum([[w.number for w in data.warning] for data in datas], axis=0))
 
 
-def _warning_counts(numbers: np.ndarray) -> dict[str, int]:
+def warning_counts(numbers: np.ndarray) -> dict[str, int]:
     """{warning name: count} of the warnings raised (numbers indexed by mjtWarning)."""
     return {mujoco.mjtWarning(index).name: int(number) for index, number in enumerate(numbers) if number}

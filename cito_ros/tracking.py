@@ -18,8 +18,9 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
+from cito_ros import _native
 from cito_ros.settings import TrackingSettings
-from cito_ros.simulator import FULL_PHYSICS, Simulator, Trajectory
+from cito_ros.simulator import Simulator, Trajectory, warning_counts
 
 
 class JointReference(Protocol):
@@ -76,23 +77,10 @@ def held_motion(simulator: Simulator, state: np.ndarray, gains: TrackingSettings
     virtual force; None when `state` is not finite. Its warnings are MuJoCo's on the way."""
     if not np.all(np.isfinite(state)):
         return None
-    scene, model = simulator.scene, simulator.model
-    kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
-    data = mujoco.MjData(model)
-    mujoco.mj_setState(model, data, state, FULL_PHYSICS)
-    held, at_rest = data.qpos[scene.arm_qpos_adr].copy(), np.zeros(len(scene.arm_dof_adr))
+    scene = simulator.scene
     steps = round(gains.hold_s / simulator.timestep_s)
-    controls = np.zeros((steps, model.nu))
-    states = np.empty((steps, simulator.nstate))
-    sensordata = np.empty((steps, model.nsensordata))
-    for t in range(steps):
-        controls[t, scene.motor_ids] = _torques(scene, data, kp, kd, held, at_rest)
-        data.ctrl[:] = controls[t]
-        mujoco.mj_step(model, data)
-        mujoco.mj_getState(model, data, states[t], FULL_PHYSICS)
-        sensordata[t] = data.sensordata
-    warnings = {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
-    return simulator.trajectory(state, states, sensordata, controls, warnings)
+    held = state[scene.state_qpos_adr + scene.arm_qpos_adr]
+    return pd_motion(simulator, state, np.tile(held, (steps, 1)), np.zeros((steps, len(held))), gains)
 
 
 def errors_at_rest(held: Trajectory | None, task) -> tuple[float, float]:
@@ -118,28 +106,25 @@ def tracked_rest_error_m(simulator: Simulator, initial_state: np.ndarray, refere
 def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
           gains: TrackingSettings) -> Trajectory:
     """Execute `reference` under PD control from initial_state."""
-    scene, model = simulator.scene, simulator.model
-    kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
-    data = mujoco.MjData(model)
-    mujoco.mj_setState(model, data, initial_state, FULL_PHYSICS)
     steps = simulator.n_steps
-    controls = np.zeros((steps, model.nu))
+    return pd_motion(simulator, initial_state, reference.q[:steps], reference.qdot[:steps], gains)
+
+
+def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray, qdot_ref: np.ndarray,
+              gains: TrackingSettings) -> Trajectory:
+    """len(q_ref) steps from initial_state, the controller's motor torques before step t
+    clamp(kp (q_ref[t] - q) + kd (qdot_ref[t] - qdot)) to the motor limits, every other control zero; natively
+    (cito_track; cito_ros.oracle.pd_motion is the same in Python)."""
+    scene, model = simulator.scene, simulator.model
+    steps = len(q_ref)
     states = np.empty((steps, simulator.nstate))
     sensordata = np.empty((steps, model.nsensordata))
-    for warning in data.warning:
-        warning.number = 0
-    for t in range(steps):
-        controls[t, scene.motor_ids] = _torques(scene, data, kp, kd, reference.q[t], reference.qdot[t])
-        data.ctrl[:] = controls[t]
-        mujoco.mj_step(model, data)
-        mujoco.mj_getState(model, data, states[t], FULL_PHYSICS)
-        sensordata[t] = data.sensordata
-    warnings = {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
-    return simulator.trajectory(initial_state, states, sensordata, controls, warnings)
-
-
-def _torques(scene, data: mujoco.MjData, kp: np.ndarray, kd: np.ndarray, q_ref: np.ndarray,
-             qdot_ref: np.ndarray) -> np.ndarray:
-    """The controller's motor torques at data's state for one reference point, clamped to the motor limits."""
-    command = kp * (q_ref - data.qpos[scene.arm_qpos_adr]) + kd * (qdot_ref - data.qvel[scene.arm_dof_adr])
-    return np.clip(command, -scene.torque_limit, scene.torque_limit)
+    controls = np.empty((steps, model.nu))
+    warnings = np.zeros(mujoco.mjtWarning.mjNWARNING.value, dtype=np.int32)
+    indices = (np.asarray(a, dtype=np.int32) for a in (scene.arm_qpos_adr, scene.arm_dof_adr, scene.motor_ids))
+    floats = (np.ascontiguousarray(a, dtype=float) for a in (initial_state, q_ref, qdot_ref, gains.kp, gains.kd,
+                                                            scene.torque_limit))
+    data = mujoco.MjData(model)  # a fresh one per motion: starts may run side by side
+    _native.track(model._address, data._address, steps, len(scene.motor_ids), *floats, *indices, states, sensordata,
+                  controls, warnings)
+    return simulator.trajectory(initial_state, states, sensordata, controls, warning_counts(warnings))

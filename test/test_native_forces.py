@@ -3,7 +3,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from cito_ros import oracle
+from cito_ros import oracle, tracking
+from cito_ros.builder import PushRequest, build_problem
+from cito_ros.scripted import joint_path
 
 from conftest import approach_torques
 
@@ -93,3 +95,30 @@ def test_trajectory_virtual_force_is_gamma_along_the_inward_normal(simulators, s
         mujoco.mj_kinematics(scene.model, data)
         np.testing.assert_allclose(trajectory.virtual_force_N[t], trajectory.gamma_N[t] * scene.inward_normal(data),
                                    atol=1e-12)
+
+
+def test_native_tracking_equals_the_oracle_bit_for_bit(settings):
+    """The joint trajectory controller (tracking.pd_motion, natively) steps as its Python oracle does: a
+    scripted push through contact, the torques saturating on a reference far off, and the hold after it."""
+    problem = build_problem(settings, PushRequest("vscm", 7)).problem
+    simulator, gains = problem.simulator, settings.tracking
+    path = joint_path(problem, settings.stages.scripted)
+    steps = simulator.n_steps
+    far_off = path.q[:steps] + np.linspace(0.0, 0.5, steps)[:, None]  # beyond the motor limits' reach
+    for q_ref, qdot_ref in ((path.q[:steps], path.qdot[:steps]), (far_off, path.qdot[:steps])):
+        native = tracking.pd_motion(simulator, problem.initial_state, q_ref, qdot_ref, gains)
+        python = oracle.pd_motion(simulator, problem.initial_state, q_ref, qdot_ref, gains)
+        assert native.warnings == python.warnings
+        for name, value in vars(native).items():
+            if isinstance(value, np.ndarray):
+                np.testing.assert_array_equal(value, getattr(python, name), err_msg=name)
+    pushed = tracking.track(simulator, problem.initial_state, path, gains)
+    assert pushed.contact_count.max() > 0  # the push touches the cube
+    assert np.any(np.abs(tracking.pd_motion(simulator, problem.initial_state, far_off, path.qdot[:steps],
+                                            gains).control_torque_Nm) == problem.scene.torque_limit)
+    held = tracking.held_motion(simulator, pushed.final_state, gains)
+    steps = round(gains.hold_s / simulator.timestep_s)
+    q_held = np.tile(pushed.q[-1], (steps, 1))
+    reference = oracle.pd_motion(simulator, pushed.final_state, q_held, np.zeros_like(q_held), gains)
+    np.testing.assert_array_equal(held.final_state, reference.final_state)
+    np.testing.assert_array_equal(held.object_position_m, reference.object_position_m)

@@ -59,6 +59,22 @@ typedef struct {
 int cito_feedback_rollouts(const mjModel* m, mjData** datas, int nthread, const CitoFeedback* feedback,
                            char* error, int error_size);
 
+// PD joint tracking (cito_ros.tracking): `steps` steps of d from initial_state (nstate,
+// mjSTATE_FULLPHYSICS; d reset first, as a fresh mjData), where before step s the motor
+// motor_ids[j] of joint j gets clamp(kp_j (q_ref[s, j] - q_j) + kd_j (qdot_ref[s, j] - qdot_j),
+// -torque_limit_j, torque_limit_j), q_j = qpos[qpos_adr[j]], qdot_j = qvel[dof_adr[j]], and every
+// other control is zero. Row-major arrays; q_ref, qdot_ref: steps x n_joints.
+typedef struct {
+  int steps, n_joints;
+  const mjtNum *initial_state, *q_ref, *qdot_ref, *kp, *kd, *torque_limit;
+  const int *qpos_adr, *dof_adr, *motor_ids;
+  mjtNum* states;      // out: steps x nstate, the state after each step
+  mjtNum* sensordata;  // out: steps x nsensordata, the sensors before each step
+  mjtNum* controls;    // out: steps x nu, the controls of each step
+  int* warnings;       // out: mjNWARNING, the MuJoCo warnings raised
+} CitoTracking;
+// Returns 0 (the caller checks the indices).
+int cito_track(const mjModel* m, mjData* d, const CitoTracking* tracking);
 // Runs run(job) for the njob jobs (an array of job_size-byte items), each on a thread of its own,
 // the first on the calling thread. Returns 0, or -1 when out of memory (nothing ran).
 int cito_run_threads(void* (*run)(void*), void* jobs, size_t job_size, int njob);

@@ -1,6 +1,6 @@
 // The CPython extension module cito_ros._native. Importing it registers the MuJoCo engine
 // plugins (once per process: Python imports a module once); `linearize` wraps cito_linearize,
-// `feedback_rollouts` cito_feedback_rollouts.
+// `feedback_rollouts` cito_feedback_rollouts, `track` cito_track.
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
@@ -161,6 +161,62 @@ static PyObject* feedback_rollouts(PyObject* self, PyObject* args) {
   Py_RETURN_NONE;
 }
 
+static PyObject* track(PyObject* self, PyObject* args) {
+  (void)self;
+  unsigned long long model_address, data_address;
+  CitoTracking t;
+  PyObject *initial_state, *q_ref, *qdot_ref, *kp, *kd, *torque_limit, *qpos_adr, *dof_adr, *motor_ids, *states,
+      *sensordata, *controls, *warnings;
+  if (!PyArg_ParseTuple(args, "KKiiOOOOOOOOOOOOO", &model_address, &data_address, &t.steps, &t.n_joints,
+                        &initial_state, &q_ref, &qdot_ref, &kp, &kd, &torque_limit, &qpos_adr, &dof_adr,
+                        &motor_ids, &states, &sensordata, &controls, &warnings)) {
+    return NULL;
+  }
+  const mjModel* m = (const mjModel*)(uintptr_t)model_address;
+  mjData* d = (mjData*)(uintptr_t)data_address;
+  if (!m || !d || t.steps < 0 || t.n_joints < 0) {
+    PyErr_SetString(PyExc_ValueError, "need model and mjData addresses, steps >= 0 and n_joints >= 0");
+    return NULL;
+  }
+  Py_ssize_t nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), steps = t.steps, n = t.n_joints;
+  Py_buffer views[13];
+  // each buffer, and the member of t that points at it
+  struct { PyObject* object; Py_ssize_t count; int writable; char format; const char* name; void* member; } specs[13] = {
+    {initial_state, nstate, 0, 'd', "initial_state", &t.initial_state},
+    {q_ref, steps * n, 0, 'd', "q_ref", &t.q_ref}, {qdot_ref, steps * n, 0, 'd', "qdot_ref", &t.qdot_ref},
+    {kp, n, 0, 'd', "kp", &t.kp}, {kd, n, 0, 'd', "kd", &t.kd}, {torque_limit, n, 0, 'd', "torque_limit", &t.torque_limit},
+    {qpos_adr, n, 0, 'i', "qpos_adr", &t.qpos_adr}, {dof_adr, n, 0, 'i', "dof_adr", &t.dof_adr},
+    {motor_ids, n, 0, 'i', "motor_ids", &t.motor_ids},
+    {states, steps * nstate, 1, 'd', "states", &t.states},
+    {sensordata, steps * m->nsensordata, 1, 'd', "sensordata", &t.sensordata},
+    {controls, steps * m->nu, 1, 'd', "controls", &t.controls},
+    {warnings, mjNWARNING, 1, 'i', "warnings", &t.warnings},
+  };
+  int acquired = 0;
+  for (; acquired < 13; acquired++) {
+    if (get_buffer(specs[acquired].object, &views[acquired], specs[acquired].count, specs[acquired].writable,
+                   specs[acquired].format, specs[acquired].name) != 0) {
+      break;
+    }
+  }
+  const char* invalid = NULL;
+  for (int j = 0; acquired == 13 && j < n && !invalid; j++) {
+    if (((const int*)views[6].buf)[j] < 0 || ((const int*)views[6].buf)[j] >= m->nq) invalid = "qpos_adr";
+    else if (((const int*)views[7].buf)[j] < 0 || ((const int*)views[7].buf)[j] >= m->nv) invalid = "dof_adr";
+    else if (((const int*)views[8].buf)[j] < 0 || ((const int*)views[8].buf)[j] >= m->nu) invalid = "motor_ids";
+  }
+  if (invalid) PyErr_Format(PyExc_ValueError, "%s has an index outside the model", invalid);
+  if (acquired == 13 && !invalid) {
+    for (int i = 0; i < 13; i++) *(void**)specs[i].member = views[i].buf;
+    Py_BEGIN_ALLOW_THREADS
+    cito_track(m, d, &t);
+    Py_END_ALLOW_THREADS
+  }
+  for (int i = 0; i < acquired; i++) PyBuffer_Release(&views[i]);
+  if (acquired < 13 || invalid) return NULL;
+  Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
   {"linearize", linearize, METH_VARARGS,
    "linearize(model_address, data_addresses, T, states, controls, eps, skip_dofs, skip_steps, A, B, C, D,\n"
@@ -173,6 +229,11 @@ static PyMethodDef methods[] = {
    "sensordata, warnings)\n"
    "iLQR's forward pass: feedback rollouts side by side, one thread per mjData in data_addresses,\n"
    "outputs into the preallocated arrays (see cito_native.h)."},
+  {"track", track, METH_VARARGS,
+   "track(model_address, data_address, steps, n_joints, initial_state, q_ref, qdot_ref, kp, kd, torque_limit,\n"
+   "qpos_adr, dof_adr, motor_ids, states, sensordata, controls, warnings)\n"
+   "PD joint tracking of q_ref, qdot_ref in the mjData, outputs into the preallocated arrays (see\n"
+   "cito_native.h)."},
   {NULL, NULL, 0, NULL},
 };
 
