@@ -178,6 +178,7 @@ class PlanResult:
 
     def summary(self) -> dict[str, Any]:
         """The identifiers and metrics as a JSON-serialisable dict."""
+        motion = self.executed_motion
         return {
             "contact_model": self.contact_model,
             "beta": self.beta,
@@ -187,10 +188,10 @@ class PlanResult:
             "object_start_position_m": self.trajectory.object_position_m[0].tolist(),
             "object_start_yaw_rad": self.scene.config.object.yaw_rad,
             **self.metrics.as_dict(),
-            "final_object_position_m": self.executed_motion.object_position_m[-1].tolist(),  # at rest
+            "final_object_position_m": motion.object_position_m[-1].tolist(),  # at rest
             "planned_object_position_m": self.planned.object_position_m[-1].tolist(),
             "tracked_object_position_m": self.tracked.followed_by(self.tracked_rest).object_position_m[-1].tolist(),
-            "warnings": self.trajectory.warnings,
+            "warnings": motion.warnings,
             "derivatives": self.derivative_info,
             "stages": [record.as_dict() for record in self.stages],
         }
