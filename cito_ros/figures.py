@@ -22,6 +22,7 @@ from cito_ros.planner import plan_push  # noqa: E402
 from cito_ros.results import PlanResult  # noqa: E402
 from cito_ros.settings import Settings, load_settings  # noqa: E402
 from cito_ros.simulator import FULL_PHYSICS  # noqa: E402
+from cito_ros.task import yaw_rotation  # noqa: E402
 
 COLORS = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
 MODELS = ("cccm", "scm", "vscm")
@@ -50,8 +51,7 @@ def _draw_goal(scene: mujoco.MjvScene, result: PlanResult) -> None:
     """The goal pose as a translucent box the size of the object."""
     if scene.ngeom >= scene.maxgeom:
         return
-    c, s = np.cos(result.target_yaw_rad), np.sin(result.target_yaw_rad)
-    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    rotation = yaw_rotation(result.target_yaw_rad)
     mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_BOX,
                         np.asarray(result.scene.object_half_size, dtype=float), np.asarray(result.target_position_m, dtype=float),
                         rotation.reshape(-1), np.asarray(GOAL_RGBA, dtype=np.float32))

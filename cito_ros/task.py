@@ -23,6 +23,12 @@ def euler_angles(rotation: np.ndarray) -> np.ndarray:
     ])
 
 
+def yaw_rotation(yaw_rad: float) -> np.ndarray:
+    """The rotation matrix of a yaw about world z."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
     rotation = np.empty(9)
     mujoco.mju_quat2Mat(rotation, quaternion / np.linalg.norm(quaternion))
@@ -47,8 +53,7 @@ class PushTask:
 
     @property
     def target_rotation(self) -> np.ndarray:
-        c, s = math.cos(self.target_yaw_rad), math.sin(self.target_yaw_rad)
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return yaw_rotation(self.target_yaw_rad)
 
     def angle_error(self, quaternion: np.ndarray) -> np.ndarray:
         """Euler angles (rad) of an object orientation (w, x, y, z) relative to the target."""
