@@ -53,7 +53,8 @@ def _draw_goal(scene: mujoco.MjvScene, result: PlanResult) -> None:
         return
     rotation = yaw_rotation(result.target_yaw_rad)
     mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_BOX,
-                        np.asarray(result.scene.object_half_size, dtype=float), np.asarray(result.target_position_m, dtype=float),
+                        np.asarray(result.scene.object_half_size, dtype=float),
+                        np.asarray(result.target_position_m, dtype=float),
                         rotation.reshape(-1), np.asarray(GOAL_RGBA, dtype=np.float32))
     scene.ngeom += 1
 
@@ -187,8 +188,9 @@ def figures(out: Path, progress: Callable[[int, str], None] | None = None) -> li
                   label="actual robot-object force in the plan")
         left.plot(t, np.linalg.norm(paper.trajectory.contact_force_N, axis=1), color="black", linewidth=1,
                   label="actual force, the plan executed without gamma")
-        left.set_title(f"{model.upper()}, the paper's problem: planned {100 * paper.metrics.planned_position_error_m:.1f}"
-                       f" cm, executed {100 * paper.metrics.position_error_m:.1f} cm", fontsize=9)
+        left.set_title(f"{model.upper()}, the paper's problem: planned "
+                       f"{100 * paper.metrics.planned_position_error_m:.1f} cm, executed "
+                       f"{100 * paper.metrics.position_error_m:.1f} cm", fontsize=9)
         t = returned.trajectory.time_s[:-1]
         right.plot(t, np.linalg.norm(returned.trajectory.contact_force_N, axis=1), color="black", linewidth=1,
                    label="actual robot-object force, executed")
@@ -200,7 +202,8 @@ def figures(out: Path, progress: Callable[[int, str], None] | None = None) -> li
             axis.grid(alpha=0.3)
     for axis in axes[-1]:
         axis.set_xlabel("time (s)")
-    figure.suptitle(f"Virtual and actual contact forces, beta = {SNAPSHOT_BETA:g} (errors where the cube comes to rest)")
+    figure.suptitle(f"Virtual and actual contact forces, beta = {SNAPSHOT_BETA:g} "
+                    "(errors where the cube comes to rest)")
     figure.tight_layout()
     written.append(out / "contact_forces.png")
     figure.savefig(written[-1], dpi=100)
