@@ -188,6 +188,7 @@ class _Run:
               name: str, max_iter: int, executor: PushProblem) -> tuple[StageOutcome, Executed]:
         """Solve one stage with the solver `kind` (IPOPT, with the run's curvature, whenever the problem
         has constraints)."""
+        began = time.perf_counter()  # the stage's wall clock: setting its solver up is the solver's work
         # the stage's own budget, capped by solver.max_iter (the CLI's --max-iter)
         settings = dataclasses.replace(self.clock.settings.solver,
                                        max_iter=min(max_iter, self.clock.settings.solver.max_iter))
@@ -202,7 +203,7 @@ class _Run:
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
                                    self.stop, self.clock.report, f"{self.prefix}{name}",
                                    problem.cost.virtual_force, None if problem.cost.virtual_force else goal)
-        phases, began = problem.simulator.clock.read(), time.perf_counter()
+        phases = problem.simulator.clock.read()
         outcome = solver.solve(problem, start, lower, upper, monitor)
         phases, solved = problem.simulator.clock.read() - phases, time.perf_counter()
         self.log += outcome.log
@@ -322,8 +323,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     def solve(index: int):
         overrides, fraction, prefix = jobs[index]
         overrides = {**overrides, **({"gradient.threads": 1} if width > 1 else {})}
-        return _solve_start(clock, _Stop(cancel, abandoned[index]), settings.with_overrides(overrides), request,
-                            fraction, prefix)
+        return _solve_start(clock, _Stop(cancel, abandoned[index]), settings, overrides, request, fraction, prefix)
 
     if width == 1:
         while not decided():
@@ -366,12 +366,14 @@ class _Stop:
         return any(event.is_set() for event in self.events)
 
 
-def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRequest, fraction: float | None,
-                 prefix: str):
-    """One start: the discovery drawing the plate onto the object from `fraction` of the horizon on (None:
-    the scripted push, cito_ros.scripted, instead of a discovery), then the physical stages. Returns the
-    best plan's execution (from which the search derives its rank and goal margin) and the outcome."""
+def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, overrides: dict, request: PushRequest,
+                 fraction: float | None, prefix: str):
+    """One start, under `settings` with `overrides` (its horizon, its script): the discovery drawing the
+    plate onto the object from `fraction` of the horizon on (None: the scripted push, cito_ros.scripted,
+    instead of a discovery), then the physical stages. Returns the best plan's execution (from which the
+    search derives its rank and goal margin) and the outcome."""
     began = time.perf_counter()
+    settings = settings.with_overrides(overrides)  # the start's horizon and script: setup too
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
     T = base.n_steps
@@ -404,8 +406,10 @@ def _solve_start(clock: _Clock, stop: _Stop, settings: Settings, request: PushRe
             break
         if spec.only_if_beyond_limits and not best[0].rank(settings)[0]:  # rank[0]: beyond the arm's limits
             continue
+        began = time.perf_counter()  # posing a stage's problem is setup, as the discovery's is
         problem = physical_twin(discovery, stage_cost(settings, base.weights, False, spec.contact_weight, touch,
                                                       spec.joint_speed_weight, spec.joint_position_weight))
+        setup_s += time.perf_counter() - began
         stage, result = run.stage(problem, settings.stages.solver, problem.with_torques(torques),
                                     problem.lower, problem.upper, f"physical {index + 1}", spec.max_iter, executor)
         torques = problem.split(stage.z)[0]
