@@ -33,6 +33,14 @@ def _minimum_jerk(s: float) -> float:
     return s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.cross of two 3-vectors: the same products and differences, without the general case's axis handling
+    (a third of a script's time). joint_path builds its other arrays as it did: J comes out of np.vstack in
+    Fortran order, the matrix products sum in an order that follows the layout, and a C-ordered J gave joint
+    paths differing in the 14th digit, which near the reach moves a plan."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def _at_start(problem) -> mujoco.MjData:
     """An mjData at the problem's initial state (the object where the request put it), its kinematics done."""
     data = mujoco.MjData(problem.scene.model)
@@ -86,6 +94,7 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
     inverse_weights = 1.0 / np.asarray(script.joint_weights)
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
     damping, identity = script.damping * np.eye(6), np.eye(len(dofs))
+    weight = script.orientation_weight
     T = len(path) - 1
     q = np.empty((T + 1, len(qadr)))
     q[0] = data.qpos[qadr]
@@ -97,9 +106,9 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
             mujoco.mj_kinematics(model, data)
             mujoco.mj_comPos(model, data)
             mujoco.mj_jacSite(model, data, jacp, jacr, site)
-            error = np.r_[path[t] - data.site_xpos[site],
-                          script.orientation_weight * np.cross(data.site_xmat[site].reshape(3, 3)[:, 2], normal)]
-            J = np.vstack([jacp[:, dofs], script.orientation_weight * jacr[:, dofs]])
+            # [2::3]: the plate normal, the site frame's z column
+            error = np.concatenate((path[t] - data.site_xpos[site], weight * _cross(data.site_xmat[site][2::3], normal)))
+            J = np.vstack([jacp[:, dofs], weight * jacr[:, dofs]])
             JW = J * inverse_weights
             system = JW @ J.T + damping
             step = JW.T @ np.linalg.solve(system, error)
