@@ -222,38 +222,45 @@ class PushProblem:
 
     # ------------------------------------------------------------------ residuals
 
-    def _terminal_residuals(self, final_state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Residuals of the final state, and their derivatives with respect to it (tangent space):
-        position (3) and Euler angles (3) against the target, then the object's velocity (6), then the
-        joint speeds beyond their margin (7: the running term sees the steps' start states only)."""
+    def _terminal_residuals(self, final_state: np.ndarray,
+                            derivatives: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residuals of the final state, and (with `derivatives`, else None) their derivatives with respect to
+        it (tangent space): position (3) and Euler angles (3) against the target, then the object's velocity
+        (6), then the joint speeds beyond their margin (7: the running term sees the steps' start states only)."""
         w, c, nv = self.weights, self.cost, self.scene.model.nv
         dof = self.scene.object_dof_adr
         object_qpos = self.scene.object_qpos(final_state)
         position_error, angle_error = self.task.pose_error(object_qpos)
         position_root, angle_root = math.sqrt(w.w1) / self.position_scale, math.sqrt(w.w2)
         rows = 6 + (6 if c.object_velocity else 0) + (7 if c.joint_speed else 0)
-        residuals, jacobian = np.zeros(rows), np.zeros((rows, 2 * nv))
+        residuals = np.zeros(rows)
+        # an evaluation's cost needs the residuals alone; the Jacobian (six Euler-angle evaluations among the
+        # rest) is for the expansions
+        jacobian = np.zeros((rows, 2 * nv)) if derivatives else None
         residuals[:3], residuals[3:6] = position_root * position_error, angle_root * angle_error
-        jacobian[:3, dof:dof + 3] = position_root * np.eye(3)
-        h = 1e-6  # Euler angles by central differences in the object's local rotation
-        for axis in range(3):
-            turned = []
-            for sign in (1.0, -1.0):
-                quaternion = object_qpos[3:7].copy()
-                mujoco.mju_quatIntegrate(quaternion, np.eye(3)[axis], sign * h)
-                turned.append(self.task.angle_error(quaternion))
-            jacobian[3:6, dof + 3 + axis] = angle_root * (turned[0] - turned[1]) / (2 * h)
+        if derivatives:
+            jacobian[:3, dof:dof + 3] = position_root * np.eye(3)
+            h = 1e-6  # Euler angles by central differences in the object's local rotation
+            for axis in range(3):
+                turned = []
+                for sign in (1.0, -1.0):
+                    quaternion = object_qpos[3:7].copy()
+                    mujoco.mju_quatIntegrate(quaternion, np.eye(3)[axis], sign * h)
+                    turned.append(self.task.angle_error(quaternion))
+                jacobian[3:6, dof + 3 + axis] = angle_root * (turned[0] - turned[1]) / (2 * h)
         row = 6
         if c.object_velocity:
             root = math.sqrt(c.object_velocity)
             scale = np.array([1.0, 1.0, 1.0, *[float(self.scene.object_half_size[0])] * 3])
             residuals[row:row + 6] = root * scale * self.scene.object_qvel(final_state)
-            jacobian[row:row + 6, nv + dof:nv + dof + 6] = np.diag(root * scale)
+            if derivatives:
+                jacobian[row:row + 6, nv + dof:nv + dof + 6] = np.diag(root * scale)
             row += 6
         if c.joint_speed:
             excess, slope = self._speed_excess(self.scene.arm_qvel(final_state)[None])
             residuals[row:row + 7] = excess[0]
-            jacobian[row:row + 7, nv + self.scene.arm_dof_adr] = np.diag(slope[0])
+            if derivatives:
+                jacobian[row:row + 7, nv + self.scene.arm_dof_adr] = np.diag(slope[0])
         return residuals, jacobian
 
     def _speed_excess(self, qdot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -264,17 +271,21 @@ class PushProblem:
         excess = np.maximum(np.abs(qdot) / self.scene.velocity_limit - c.joint_speed_margin, 0.0)
         return root * excess, root * (excess > 0) * np.sign(qdot) / self.scene.velocity_limit
 
-    def _running_residuals(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Residuals of every step, (T, k), and their derivatives with respect to the step's used
-        sensor rows, (T, k, rows): end-effector velocity (3), the virtual force (1, with it), joint
-        speeds (7) and positions (7) beyond their margins, the contact term (1: the plate-object gap), and
-        CCCM's complementarity with the slack eliminated (1: phi gamma)."""
+    def _running_residuals(self, sensordata: np.ndarray,
+                           derivatives: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residuals of every step, (T, k), and (with `derivatives`, else None) their derivatives with respect
+        to the step's used sensor rows, (T, k, rows): end-effector velocity (3), the virtual force (1, with it),
+        joint speeds (7) and positions (7) beyond their margins, the contact term (1: the plate-object gap),
+        and CCCM's complementarity with the slack eliminated (1: phi gamma)."""
         w, c, T = self.weights, self.cost, self.n_steps
         used = {name: slice(start, start + size) for name, start, size in (
             ("ee", 0, 3), ("gamma", 3, 1), ("local", 4, 3), ("q", 7, 7), ("qdot", 14, 7), ("gap", 21, 1))}
         blocks: list[tuple[np.ndarray, np.ndarray]] = []  # (residuals (T, k), jacobian (T, k, rows))
 
         def block(values: np.ndarray, derivative: np.ndarray, rows: slice) -> None:
+            if not derivatives:
+                blocks.append((values, None))
+                return
             jacobian = np.zeros((T, values.shape[1], len(self.used_rows)))
             jacobian[:, :, rows] = derivative
             blocks.append((values, jacobian))
@@ -303,7 +314,8 @@ class PushProblem:
             gamma = sensordata[:, self.gamma_row]
             derivative = np.concatenate([root * phi[:, None], root * gamma[:, None] * d_phi], axis=1)
             block((root * phi * gamma)[:, None], derivative[:, None, :], slice(used["gamma"].start, used["local"].stop))
-        return np.concatenate([b[0] for b in blocks], axis=1), np.concatenate([b[1] for b in blocks], axis=1)
+        residuals = np.concatenate([b[0] for b in blocks], axis=1)
+        return residuals, np.concatenate([b[1] for b in blocks], axis=1) if derivatives else None
 
     def _variable_residuals(self, variables: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The contact model's residuals on its knot variables alone (none with CCCM's slack eliminated)."""
@@ -332,8 +344,8 @@ class PushProblem:
 
     def _outputs(self, states: np.ndarray, sensordata: np.ndarray, variables: np.ndarray):
         """Residual blocks (terminal, running, variables), constraints and knot mean signed distances."""
-        terminal, _ = self._terminal_residuals(states[-1])
-        running, _ = self._running_residuals(sensordata)
+        terminal, _ = self._terminal_residuals(states[-1], derivatives=False)
+        running, _ = self._running_residuals(sensordata, derivatives=False)
         extra = self._variable_residuals(variables)[0]
         phi = self.signed_distance(sensordata).reshape(self.n_knots, self.steps_per_knot).mean(axis=1)
         constraints = self._knot_constraints(phi, variables)

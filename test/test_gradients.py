@@ -145,6 +145,9 @@ def test_residual_jacobian_matches_differences_and_the_gradient(settings, name, 
     evaluation = problem.evaluate(z)
     assert evaluation.cost == pytest.approx(evaluation.residuals @ evaluation.residuals, rel=1e-12)
     running, _ = problem._running_residuals(evaluation.sensordata)
+    # an evaluation builds its residuals without their Jacobians: the same values, bit for bit
+    with_derivatives = np.concatenate([problem._terminal_residuals(evaluation.states[-1])[0], running.ravel()])
+    np.testing.assert_array_equal(evaluation.residuals[:len(with_derivatives)], with_derivatives)
     # columns: ee velocity (3), [gamma], 7 speeds, 7 positions, contact, [phi gamma]
     first = 4 if virtual_force else 3
     active = np.abs(running).max(axis=0) > 0
