@@ -282,38 +282,42 @@ class PushProblem:
             ("ee", 0, 3), ("gamma", 3, 1), ("local", 4, 3), ("q", 7, 7), ("qdot", 14, 7), ("gap", 21, 1))}
         blocks: list[tuple[np.ndarray, np.ndarray]] = []  # (residuals (T, k), jacobian (T, k, rows))
 
-        def block(values: np.ndarray, derivative: np.ndarray, rows: slice) -> None:
+        def block(values: np.ndarray, rows: slice, diagonal: np.ndarray | None = None,
+                  derivative: np.ndarray | None = None) -> None:
+            """Residuals (T, k) on sensor `rows`, and their derivative (T, k, len(rows)) or, for one residual per
+            row, its diagonal (T, k): the (T, k, k) blocks are built only with the derivatives."""
             if not derivatives:
                 blocks.append((values, None))
                 return
             jacobian = np.zeros((T, values.shape[1], len(self.used_rows)))
-            jacobian[:, :, rows] = derivative
+            jacobian[:, :, rows] = diagonal[:, :, None] * np.eye(values.shape[1]) if derivative is None else derivative
             blocks.append((values, jacobian))
 
         root = math.sqrt(self.running_factor * w.w3)
-        block(root * sensordata[:, self.ee_rows], np.broadcast_to(root * np.eye(3), (T, 3, 3)), used["ee"])
+        block(root * sensordata[:, self.ee_rows], used["ee"], np.full((T, 3), root))
         if self.cost.virtual_force:
             root = math.sqrt(self.running_factor * w.w4)
-            block(root * sensordata[:, [self.gamma_row]], np.full((T, 1, 1), root), used["gamma"])
+            block(root * sensordata[:, [self.gamma_row]], used["gamma"], np.full((T, 1), root))
         if c.joint_speed:
             excess, slope = self._speed_excess(sensordata[:, self.qdot_rows])
-            block(excess, slope[:, :, None] * np.eye(7), used["qdot"])
+            block(excess, used["qdot"], slope)
         if c.joint_position:
             root = math.sqrt(c.joint_position / T)
             q = sensordata[:, self.q_rows]
             low, high = self.soft_joint_range
             excess = np.maximum(q - high, 0.0) + np.minimum(q - low, 0.0)
-            block(root * excess, (root * (excess != 0))[:, :, None] * np.eye(7), used["q"])
+            block(root * excess, used["q"], root * (excess != 0))
         if c.contact:
             gap = sensordata[:, self.gap_row]
             root = np.sqrt(c.contact * c.contact_profile) * (gap > 0)
-            block((root * gap)[:, None], root[:, None, None], used["gap"])
+            block((root * gap)[:, None], used["gap"], root[:, None])
         if self.slack_eliminated:
             root = math.sqrt(c.complementarity / self.steps_per_knot)
             phi, d_phi = self._signed_distance_derivative(sensordata)
             gamma = sensordata[:, self.gamma_row]
             derivative = np.concatenate([root * phi[:, None], root * gamma[:, None] * d_phi], axis=1)
-            block((root * phi * gamma)[:, None], derivative[:, None, :], slice(used["gamma"].start, used["local"].stop))
+            block((root * phi * gamma)[:, None], slice(used["gamma"].start, used["local"].stop),
+                  derivative=derivative[:, None, :])
         residuals = np.concatenate([b[0] for b in blocks], axis=1)
         return residuals, np.concatenate([b[1] for b in blocks], axis=1) if derivatives else None
 

@@ -190,7 +190,8 @@ class PlanResult:
             **self.metrics.as_dict(),
             "final_object_position_m": motion.object_position_m[-1].tolist(),  # at rest
             "planned_object_position_m": self.planned.object_position_m[-1].tolist(),
-            "tracked_object_position_m": self.tracked.followed_by(self.tracked_rest).object_position_m[-1].tolist(),
+            "tracked_object_position_m": (self.tracked if self.tracked_rest is None else
+                                          self.tracked_rest).object_position_m[-1].tolist(),  # at rest
             "warnings": motion.warnings,
             "derivatives": self.derivative_info,
             "stages": [record.as_dict() for record in self.stages],
