@@ -338,3 +338,30 @@ def write_paper_outputs(results: list[dict], out_dir: Path) -> list[Path]:
                 row += [r[key], "" if paper is None else paper[PAPER_MODELS.index(r["contact_model"])]]
             writer.writerow(row)
     return [markdown, table]
+
+
+def push_limits_benchmark(plate_heights_m: tuple[float, ...] = (0.06, 0.10, 0.14), step_m: float = 0.005) -> dict:
+    """Where a push whose plate holds its height can leave the object, against the push reach
+    (cito_ros.push_limits): per kind of contact and plate height, the farthest rest distance, where the
+    plate is then, its fastest speed along the push there and the slide it buys."""
+    from cito_ros import push_limits
+
+    settings = load_settings()
+    posed = build_problem(settings, PushRequest("vscm", settings.beta))
+    limits = push_limits.push_limits(posed.scene, posed.initial_state, plate_heights_m, step_m=step_m)
+    farthest = []
+    for contact in push_limits.CONTACTS:
+        for height in plate_heights_m:
+            rows = [row for row in limits if row.contact == contact and row.plate_height_m == height]
+            if rows:
+                best = max(rows, key=lambda row: row.rest_distance_m)
+                farthest.append({"contact": contact, "plate_height_m": height,
+                                 "plate_distance_m": best.plate_distance_m, "object_distance_m": best.object_distance_m,
+                                 "release_speed_m_s": best.release_speed_m_s, "slide_m": best.slide_m,
+                                 "rest_distance_m": best.rest_distance_m,
+                                 "largest_slide_m": max(row.slide_m for row in rows)})
+    return {"push_reach_m": posed.scene.push_reach_m(), "step_m": step_m,
+            "steady_reach_m": {contact: push_limits.farthest(limits, contact).rest_distance_m
+                               for contact in push_limits.CONTACTS},
+            "farthest": farthest,
+            "positions": [{**vars(row), "rest_distance_m": row.rest_distance_m} for row in limits]}

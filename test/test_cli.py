@@ -142,6 +142,19 @@ def test_bench_roughness_scans_each_scene_and_names_an_unknown_one():
     assert refused.returncode == 2 and "unknown scene 'moon'" in refused.stderr
 
 
+def test_bench_push_limits_prints_the_steady_reach_and_refuses_a_bad_step():
+    result = run("cito-bench", "push-limits", "--heights", "0.10", "--step", "0.04", "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert [row["contact"] for row in report["farthest"]] == ["face", "rim"]
+    assert report["steady_reach_m"]["face"] < report["steady_reach_m"]["rim"] <= report["push_reach_m"]
+    # positions 4 cm apart from 0.95 m out to where the plate cannot reach, for each contact
+    face = [row["plate_distance_m"] for row in report["positions"] if row["contact"] == "face"]
+    assert face[0] == pytest.approx(0.95) and np.allclose(np.diff(face), 0.04)
+    refused = run("cito-bench", "push-limits", "--step", "0")
+    assert refused.returncode == 2 and "positive step" in refused.stderr
+
+
 def test_bench_figures(tmp_path):
     result = run("cito-bench", "figures", "--out", str(tmp_path), timeout=900)
     assert result.returncode == 0, result.stderr

@@ -10,6 +10,7 @@
     cito-bench collisions [--json] [--out DIR]    the minimal scene against all collisions
     cito-bench figures [--out DIR]                snapshots and plots of planned motions
     cito-bench roughness [--scenes S ...] [--plans] [--json]   how far a push's outcome jumps under tiny changes
+    cito-bench push-limits [--heights H ...] [--step M] [--json]   where a push that holds its height can leave the cube
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -38,6 +39,24 @@ def print_rollout(result: dict) -> None:
     print(f"  native       {result['native_rollout_ms']:8.3f} ms   ({result['step_us']:.2f} us/step)")
     print(f"  python       {result['python_rollout_ms']:8.3f} ms   (native is {result['speedup_native_over_python']:.1f}x faster)")
     print(f"  batched      {result['batched_rollouts_per_s']:8.0f} rollouts/s on {result['batch_threads']} threads")
+
+
+def push_limits_table(result: dict) -> str:
+    lines = ["Farthest rest of the cube's centre from the arm base for a push whose plate holds its height, "
+             f"plate positions every {100 * result['step_m']:g} cm along +x (face: the plate's face along the push; "
+             "rim: any orientation, its rim leading); the fastest plate speed there within the joint velocity "
+             "limits, and the slide it buys when released", "",
+             "| contact | plate height (m) | plate at (m) | cube centre at (m) | release speed (m/s) | slide (mm) "
+             "| rest (m) | largest slide anywhere (mm) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for row in result["farthest"]:
+        lines.append(f"| {row['contact']} | {row['plate_height_m']:.2f} | {row['plate_distance_m']:.3f} | "
+                     f"{row['object_distance_m']:.3f} | {row['release_speed_m_s']:.3f} | {1e3 * row['slide_m']:.1f} | "
+                     f"{row['rest_distance_m']:.3f} | {1e3 * row['largest_slide_m']:.1f} |")
+    steady = result["steady_reach_m"]
+    lines += ["", f"steady push reach: face {steady['face']:.3f} m, rim {steady['rim']:.3f} m; "
+                  f"push reach (the plate's rim at full stretch) {result['push_reach_m']:.3f} m"]
+    return "\n".join(lines)
 
 
 def roughness_table(result: dict) -> str:
@@ -134,6 +153,11 @@ def main(argv: list[str] | None = None) -> int:
     roughness.add_argument("--plans", action="store_true",
                            help="scan the plans the planner returns for those pushes instead of the scripted pushes")
     roughness.add_argument("--json", action="store_true", help="print one JSON object")
+    limits = commands.add_parser("push-limits", help="where a push that holds its height can leave the cube")
+    limits.add_argument("--heights", nargs="+", type=float, default=[0.06, 0.10, 0.14],
+                        help="plate-centre heights above the floor (m); the cube's faces span 0.025-0.175 m")
+    limits.add_argument("--step", type=float, default=0.005, help="spacing of the plate positions along the push (m)")
+    limits.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
 
     if args.command == "rollout":
@@ -239,6 +263,12 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as error:  # an unknown scene
             parser.error(str(error))
         print(json.dumps(result) if args.json else roughness_table(result))
+    elif args.command == "push-limits":
+        try:
+            result = benchmarks.push_limits_benchmark(tuple(args.heights), args.step)
+        except ValueError as error:  # a step that is not positive
+            parser.error(str(error))
+        print(json.dumps(result) if args.json else push_limits_table(result))
     elif args.command == "figures":
         from cito_ros import figures as figure_module
 

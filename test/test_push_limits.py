@@ -1,0 +1,41 @@
+"""Where a push that holds its height can leave the cube (cito_ros.push_limits): the bound behind the
+near-reach lottery (README: where a steady push ends)."""
+import numpy as np
+import pytest
+
+from cito_ros import push_limits
+from cito_ros.builder import PushRequest, build_problem
+from cito_ros.settings import load_settings
+
+
+def test_the_fastest_push_is_the_linear_programs_optimum():
+    # v_y = q2 - q3 = 0 and v_z = q1 + q3 = 0 leave qdot = t (-1, 1, 1), v_x = t: the second joint's limit binds
+    jacp = np.array([[1.0, 2.0, 0.0], [0.0, 1.0, -1.0], [1.0, 0.0, 1.0]])
+    limits = np.array([1.0, 0.5, 2.0])
+    speed = push_limits.fastest_push_m_s(jacp, np.zeros((3, 3)), np.array([1.0, 0.0, 0.0]), limits, False)
+    assert speed == pytest.approx(0.5)
+    # pushing along -x flips the sign of t: the same bound
+    speed = push_limits.fastest_push_m_s(jacp, np.zeros((3, 3)), np.array([-1.0, 0.0, 0.0]), limits, False)
+    assert speed == pytest.approx(0.5)
+
+
+def test_a_steady_face_push_ends_centimetres_short_of_the_push_reach_and_a_release_adds_nothing_there():
+    settings = load_settings()
+    posed = build_problem(settings, PushRequest("vscm", settings.beta))
+    limits = push_limits.push_limits(posed.scene, posed.initial_state, (0.10,), start_m=0.96, step_m=0.04)
+    reach = posed.scene.push_reach_m()
+    face, rim = push_limits.farthest(limits, "face"), push_limits.farthest(limits, "rim")
+    assert all(row.rest_distance_m <= reach for row in limits)
+    assert face.rest_distance_m < reach - 0.04 < rim.rest_distance_m
+    # at full stretch the arm cannot move the plate along the push: a release there slides under a millimetre
+    assert face.slide_m < 1e-3 and rim.slide_m < 1e-3
+    # further in it can: the slide grows with the speed
+    slides = [row.slide_m for row in limits if row.contact == "rim"]
+    assert max(slides) > 10 * rim.slide_m
+
+
+def test_a_scan_without_heights_or_step_is_refused():
+    settings = load_settings()
+    posed = build_problem(settings, PushRequest("vscm", settings.beta))
+    with pytest.raises(ValueError, match="positive step"):
+        push_limits.push_limits(posed.scene, posed.initial_state, (0.10,), step_m=0.0)
