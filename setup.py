@@ -1,7 +1,7 @@
 """cito_ros: contact-implicit trajectory optimization for pushing, as a ROS 2 package.
 
 Installs as an ament_python package (colcon) and as a plain pip package. The
-native MuJoCo engine plugins (cito_ros/native) compile against the headers and
+native MuJoCo engine plugins (cito_ros/model/native) compile against the headers and
 library shipped in the `mujoco` wheel, which must be importable at build time
 (`pip install --no-build-isolation`).
 """
@@ -21,9 +21,9 @@ def mujoco_extension() -> Extension:
     if not libraries:
         raise RuntimeError(f"libmujoco.so not found next to {mujoco.__file__}")
     return Extension(
-        f"{PACKAGE}._native",
-        sources=sorted(glob.glob("cito_ros/native/*.c")),
-        depends=sorted(glob.glob("cito_ros/native/*.h")),
+        f"{PACKAGE}.model._native",
+        sources=sorted(glob.glob("cito_ros/model/native/*.c")),
+        depends=sorted(glob.glob("cito_ros/model/native/*.h")),
         include_dirs=[os.path.join(mujoco_dir, "include")],
         extra_compile_args=["-O2", "-std=c11", "-Wall", "-Wextra", "-Werror"],
         # Link the wheel's libmujoco by path; the rpaths find it for an installed
@@ -58,9 +58,9 @@ setup(
             "cito-scene = cito_ros.cli.scene:main",
             "cito-bench = cito_ros.cli.bench:main",
             "cito-plan = cito_ros.cli.plan:main",
-            "cito-planner-node = cito_ros.node:main",
+            "cito-planner-node = cito_ros.ros.node:main",
             "cito-demo = cito_ros.cli.demo:main",
-            "planner_node = cito_ros.node:main",
+            "planner_node = cito_ros.ros.node:main",
         ],
     },
 )

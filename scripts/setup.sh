@@ -58,8 +58,8 @@ fi
 # The package itself (editable: models/ and config/ are read from this checkout),
 # rebuilt when its native code or build description changes.
 pkg_stamp="$venv/.cito-package.sha"
-pkg_want="$(cd "$root" && cat setup.py setup.cfg package.xml cito_ros/native/*.[ch] | sha256sum | cut -d' ' -f1)"
-if [ "$(cat "$pkg_stamp" 2>/dev/null)" != "$pkg_want" ] || ! "$venv/bin/python" -c 'import cito_ros._native' 2>/dev/null; then
+pkg_want="$(cd "$root" && cat setup.py setup.cfg package.xml cito_ros/model/native/*.[ch] | sha256sum | cut -d' ' -f1)"
+if [ "$(cat "$pkg_stamp" 2>/dev/null)" != "$pkg_want" ] || ! "$venv/bin/python" -c 'import cito_ros.model._native' 2>/dev/null; then
   echo "[setup] building cito_ros (native MuJoCo plugins)"
   (cd "$root" && quiet "$venv/bin/python" -m pip install --no-build-isolation --no-deps -e .)
   echo "$pkg_want" > "$pkg_stamp"

@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import Scene, start_configuration
+from cito_ros.model.simulator import Simulator
 from cito_ros.settings import load_settings
-from cito_ros.contact_models import contact_model
-from cito_ros.scene import Scene, start_configuration
-from cito_ros.simulator import Simulator
 
 
 @pytest.fixture(scope="session")

@@ -17,7 +17,6 @@ from cito_msgs.srv import PlanPush
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
-
 from test_node import Client, read_with_mcap, read_with_rosbags, request, start_node
 
 Q0_BETA_5_GOAL = dict(start=None, model="vscm", x=1.24)  # the main job: the long beta = 5 VSCM solve

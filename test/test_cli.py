@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cito_ros import studies
-from cito_ros.builder import PushRequest, build_problem
-from cito_ros.planner import plan_push
-from cito_ros.results import METRIC_NAMES
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.results import METRIC_NAMES
 from cito_ros.settings import SceneConfig
+from cito_ros.studies import asks
 
 BIN = Path(sys.executable).parent
 
@@ -183,9 +183,9 @@ def test_the_main_job_cancelled_returns_the_best_plan_so_far(tmp_path):
 
 def test_every_speed_vs_error_case_can_be_posed_in_every_variants_scene(settings):
     # a case the planner refuses would enter the study's medians as a 0 s solve
-    for variant in studies.VARIANTS:
+    for variant in asks.VARIANTS:
         settings.with_overrides(variant.overrides)  # a misspelt parameter fails here, not an hour into the study
-        for case in studies.SWEEP_CASES:
+        for case in asks.SWEEP_CASES:
             scene = variant.scene or case.scene
             x, y = SceneConfig.load(scene).object.position_m
             target = np.array([x + case.push[0], y + case.push[1]])

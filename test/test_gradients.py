@@ -7,12 +7,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from cito_ros.builder import PushRequest, build_problem
-from cito_ros.derivatives import adjoint, forward_sensitivities, linearize
-from cito_ros.ipopt import _Callbacks
-from cito_ros.problem import PushProblem, StageCost
-from cito_ros.stages import physical_twin
-from cito_ros.task import PushTask
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.problem import PushProblem, StageCost
+from cito_ros.planner.problem.rollout_derivatives import adjoint, forward_sensitivities, linearize
+from cito_ros.planner.solvers.ipopt import _Callbacks
+from cito_ros.planner.stages import physical_twin
+from cito_ros.planner.task import PushTask
 
 
 def make_problem(settings, name, beta=7, **overrides):

@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from cito_ros.builder import PushRequest, build_problem
-from cito_ros.cases import load_cases, run_case
-from cito_ros.planner import evaluate_plan
-from cito_ros.results import Status
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.plan import evaluate_plan
+from cito_ros.planner.results import Status
+from cito_ros.planner.stages import Outcome, physical_twin
 from cito_ros.settings import load_settings
-from cito_ros.stages import Outcome, physical_twin
+from cito_ros.studies.cases import load_cases, run_case
 
 CASES = load_cases()
 # the scripted start and the first two discoveries at one horizon: these tests are about statuses and numbers,
-# not success, and the further starts of a missed push (cito_ros.stages.solve_physical) would only repeat them
+# not success, and the further starts of a missed push (cito_ros.planner.stages.solve_physical) would only repeat them
 TWO_STARTS = load_settings().with_overrides({"stages.horizon_scales": [1.0], "stages.starts": [0.5, 0.3]})
 STATUSES = {s.value for s in Status} | {"invalid_request"}
 EXPECTED = {"far_0.40m", "far_0.50m", "lateral_+0.15m", "lateral_-0.15m", "yaw_30deg", "yaw_45deg", "heavy_2kg",

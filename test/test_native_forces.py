@@ -1,13 +1,13 @@
-"""The native engine plugins against the pure-Python oracle (cito_ros.oracle)."""
+"""The native engine plugins against the pure-Python oracle (cito_ros.model.oracle)."""
 import mujoco
 import numpy as np
 import pytest
-
-from cito_ros import oracle, tracking
-from cito_ros.builder import PushRequest, build_problem
-from cito_ros.scripted import joint_path
-
 from conftest import approach_torques
+
+from cito_ros.model import oracle
+from cito_ros.planner import tracking
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.scripted import joint_path
 
 
 def random_states(scene, count, seed=0):

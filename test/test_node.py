@@ -24,14 +24,14 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader as RosbagsReader
-from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
-from cito_ros.contact_models import contact_model
-from cito_ros.planner import plan_push
-from cito_ros.scene import Scene
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import Scene
+from cito_ros.planner.plan import plan_push
 from cito_ros.settings import load_settings
 
 NODE = str(Path(sys.executable).parent / "cito-planner-node")

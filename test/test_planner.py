@@ -1,5 +1,5 @@
 """Planning: physical success, the arm's limits, the contact models' own plans, cancellation,
-statuses, determinism and bad requests. Real MuJoCo, real iLQR and IPOPT."""
+statuses and determinism. Real MuJoCo, real iLQR and IPOPT."""
 import dataclasses
 import math
 import threading
@@ -9,18 +9,19 @@ import mujoco
 import numpy as np
 import pytest
 
-from cito_ros import benchmarks, targets, tracking
-from cito_ros.builder import PushRequest, build_problem
-from cito_ros.ilqr import IlqrSolver
-from cito_ros.ipopt import IpoptSolver
-from cito_ros.planner import plan_push
-from cito_ros.results import PHASE_METRICS, IterationLog, Status
-from cito_ros.scene import start_configuration
-from cito_ros.scripted import scripted_torques
-from cito_ros.solver import IterationMonitor, violation
-from cito_ros.stages import Executed, execute, physical_twin
-from cito_ros.targets import PERTURBATIONS, draw_goals, stability
-
+from cito_ros.model.scene import start_configuration
+from cito_ros.planner import tracking
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.candidates import Executed, execute
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.results import PHASE_METRICS, IterationLog, Status
+from cito_ros.planner.scripted import scripted_torques
+from cito_ros.planner.solvers.base import IterationMonitor, violation
+from cito_ros.planner.solvers.ilqr import IlqrSolver
+from cito_ros.planner.solvers.ipopt import IpoptSolver
+from cito_ros.planner.stages import physical_twin
+from cito_ros.studies import paper, targets
+from cito_ros.studies.targets import PERTURBATIONS, draw_goals, stability
 
 SHORT_PUSH_M = [1.09, 0.0]  # the cube pushed 10 cm along +x from the paper's closest start (beta = 7)
 
@@ -73,7 +74,7 @@ def test_a_hair_of_change_in_the_request_keeps_the_verdict_and_the_error_on_a_pa
     # the target moved by 1e-9 m, or every start joint by 1e-9 rad: the same verdict and an executed error
     # within 1 cm (CCCM, the fastest model; README "Tiny changes" gives all three). At beta = 6 the first
     # script ends 1.45 cm off unperturbed, 1.98 cm with the target moved: the best of the scripts is returned
-    records = [benchmarks.paper_case("cccm", beta, settings, name) for name in PERTURBATIONS]
+    records = [paper.paper_case("cccm", beta, settings, name) for name in PERTURBATIONS]
     assert [record["success"] for record in records] == [True, True, True]
     unperturbed = records[0]["position_error_m"]
     assert all(abs(record["position_error_m"] - unperturbed) <= 0.01 for record in records[1:]), records
@@ -82,11 +83,11 @@ def test_a_hair_of_change_in_the_request_keeps_the_verdict_and_the_error_on_a_pa
 def test_the_paper_benchmark_pairs_each_perturbed_case_with_its_own(settings):
     # the pairing, not the plans: one start, one iteration per stage
     capped = settings.with_overrides({"solver.max_iter": 1, "stages.starts": [0.5], "stages.horizon_scales": [1.0]})
-    records = [benchmarks.paper_case("scm", 7, capped, name) for name in PERTURBATIONS]
+    records = [paper.paper_case("scm", 7, capped, name) for name in PERTURBATIONS]
     assert [r["perturbation"] for r in records] == list(PERTURBATIONS) and {r["beta"] for r in records} == {7}
     pairs = stability(records, "beta")["scm"]
     assert set(pairs) == set(PERTURBATIONS) - {"none"} and all(p["pairs"] == 1 for p in pairs.values())
-    assert "| SCM | target x +1e-9 m | " in benchmarks.paper_tables(records)
+    assert "| SCM | target x +1e-9 m | " in paper.paper_tables(records)
 
 
 def test_cccms_discovery_eliminates_its_slack_and_has_no_constraints(discovered, settings):
@@ -341,67 +342,6 @@ def test_ilqr_lowers_its_regularization_only_after_a_full_step(settings):
     full, short = solver.step_lengths.max(), solver.step_lengths.min()
     assert solver._after_step(1.0, full) == pytest.approx(1.0 / solver.mu_factor)
     assert solver._after_step(1.0, short) == 1.0
-
-
-class TestBadRequests:
-    def test_unknown_contact_model(self, settings):
-        with pytest.raises(ValueError, match="unknown contact model 'rigid'"):
-            plan_push("rigid", 7, settings=settings)
-
-    def test_nan_target(self, settings):
-        with pytest.raises(ValueError, match="target position contains NaN or Inf"):
-            plan_push("vscm", 7, settings=settings, target_position_m=[np.nan, 0.0])
-
-    def test_bad_target_shape(self, settings):
-        with pytest.raises(ValueError, match=r"must be \(x, y\) or \(x, y, z\)"):
-            plan_push("vscm", 7, settings=settings, target_position_m=[1.0, 0.0, 0.1, 0.0])
-
-    def test_nan_yaw(self, settings):
-        with pytest.raises(ValueError, match="target yaw must be finite"):
-            plan_push("vscm", 7, settings=settings, target_yaw_rad=float("nan"))
-
-
-class TestReach:
-    def test_off_the_table(self, settings):
-        with pytest.raises(ValueError, match=r"target \(1.900, 0.000\) m is off the table"):
-            plan_push("vscm", 7, settings=settings, target_position_m=[1.9, 0.0])
-
-    def test_a_target_z_within_the_tolerance_is_the_resting_height(self, settings):
-        """z = table top + half edge (the demo's, 0.1 mm above the settled cube) poses the same problem
-        as (x, y) alone."""
-        spelled = [build_problem(settings, PushRequest("vscm", 7, None, target, 0.0, None, None)).problem.task
-                   for target in ([1.09, 0.0], [1.09, 0.0, 0.1])]
-        assert np.array_equal(spelled[0].target_position_m, spelled[1].target_position_m)
-
-    def test_lifted(self, settings):
-        with pytest.raises(ValueError, match="is not the object's resting height"):
-            plan_push("vscm", 7, settings=settings, target_position_m=[1.2, 0.0, 0.5])
-
-    def test_the_reach_comes_from_the_model(self, scenes):
-        """The plate centre's farthest point at the top of the cube's faces, found by optimization, plus
-        the plate's radius and the cube's half edge: checked against a dense sample of the arm's
-        configurations, none of which reaches farther."""
-        scene = scenes["vscm"]
-        reach = scene.push_reach_m()
-        import mujoco
-
-        data = mujoco.MjData(scene.model)
-        rng = np.random.default_rng(0)
-        low, high = scene.joint_range.T
-        farthest = 0.0
-        for q in rng.uniform(low, high, (20000, 7)):
-            data.qpos[scene.arm_qpos_adr] = q
-            mujoco.mj_kinematics(scene.model, data)
-            plate = data.site_xpos[scene.robot_site_id]
-            if plate[2] <= 0.175:
-                farthest = max(farthest, float(np.hypot(plate[0], plate[1])))
-        assert farthest + 0.035 + 0.075 <= reach + 1e-6
-        assert reach > 1.24  # the paper's push (0.25 m along +x from 0.99 m) is within reach
-
-    def test_beyond_reach_is_refused_with_the_numbers(self, settings, scenes):
-        reach = scenes["vscm"].push_reach_m()
-        with pytest.raises(ValueError, match=rf"beyond the {reach:.3f} m the arm can push the object's centre to"):
-            plan_push("vscm", 7, settings=settings, target_position_m=[reach + 0.01, 0.0])
 
 
 @pytest.mark.parametrize("pipeline", ["physical", "paper"])

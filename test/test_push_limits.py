@@ -1,10 +1,10 @@
-"""Where a push that holds its height can leave the cube (cito_ros.push_limits): the bound behind the
+"""Where a push that holds its height can leave the cube (cito_ros.planner.push_limits): the bound behind the
 near-reach lottery (README: where a steady push ends)."""
 import numpy as np
 import pytest
 
-from cito_ros import push_limits
-from cito_ros.builder import PushRequest, build_problem
+from cito_ros.planner import push_limits
+from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.settings import load_settings
 
 

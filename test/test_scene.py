@@ -5,9 +5,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.settings import SceneConfig, load_settings
-from cito_ros.contact_models import contact_model
-from cito_ros.scene import Scene, start_configuration
 
 PAPER_DISTANCES = {5: 0.30, 6: 0.17, 7: 0.11}
 

@@ -1,13 +1,13 @@
-"""The scripted push, the physical pipeline's first start (cito_ros.scripted). Real MuJoCo."""
+"""The scripted push, the physical pipeline's first start (cito_ros.planner.scripted). Real MuJoCo."""
 import numpy as np
 import pytest
 
-from cito_ros.benchmarks import roughness_benchmark
-from cito_ros.builder import PushRequest, build_problem
-from cito_ros.scripted import _cross, joint_path, plate_path, scripted_torques
-from cito_ros.planner import plan_push
-from cito_ros.stages import physical_twin
-from cito_ros.targets import draw_goals
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.scripted import _cross, joint_path, plate_path, scripted_torques
+from cito_ros.planner.stages import physical_twin
+from cito_ros.studies.benchmarks import roughness_benchmark
+from cito_ros.studies.targets import draw_goals
 
 
 def executor(settings, beta, target, yaw=0.0):

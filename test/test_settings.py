@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from cito_ros.paths import share_dir
-from cito_ros.results import METRIC_NAMES
+from cito_ros.planner.results import METRIC_NAMES
 from cito_ros.settings import Settings, load_parameters, load_settings
+from cito_ros.settings.paths import share_dir
 
 
 def settings_classes(cls=Settings, seen=None):

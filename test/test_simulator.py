@@ -3,12 +3,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-
-from cito_ros.contact_models import contact_model
-from cito_ros.scene import Scene
-from cito_ros.simulator import Simulator
-
 from conftest import approach_torques
+
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import Scene
+from cito_ros.model.simulator import Simulator
 
 
 def end_effector(scene, q):

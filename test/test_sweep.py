@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cito_ros import sweep, targets
-from cito_ros.results import PHASE_METRICS
+from cito_ros.planner.results import PHASE_METRICS
 from cito_ros.settings import load_settings
+from cito_ros.studies import sweep, targets
 
 TIMINGS = ("solve_time_s", *PHASE_METRICS)
 

@@ -15,7 +15,7 @@
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
 --address ADDR, or one by one in this process with --workers 0; each finished case is written to
-<out>/cases/ as it arrives, and a rerun with the same --out skips those (cito_ros.sweep).
+<out>/cases/ as it arrives, and a rerun with the same --out skips those (cito_ros.studies.sweep).
 """
 from __future__ import annotations
 
@@ -29,9 +29,9 @@ import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from cito_ros import benchmarks, studies, sweep  # noqa: E402
-from cito_ros.cases import load_cases  # noqa: E402
 from cito_ros.cli.progress import advance, progress_bar  # noqa: E402
+from cito_ros.studies import asks, benchmarks, paper, sweep  # noqa: E402
+from cito_ros.studies.cases import load_cases  # noqa: E402
 
 
 def print_rollout(result: dict) -> None:
@@ -105,20 +105,20 @@ def main(argv: list[str] | None = None) -> int:
                       help="the first N goals of `targets` (seed 0) with each model, besides the nine paper cases")
     cost.add_argument("--repeats", type=positive_int, default=20, help="timed rollouts per case (median)")
     cost.add_argument("--json", action="store_true", help="print one JSON object")
-    paper = commands.add_parser("paper", help="the paper's nine cases and Tables I-IV")
-    paper.add_argument("--pipeline", choices=("paper", "physical"), default="paper",
-                       help="paper: exactly the paper's problem (Tables I-IV); physical: the planner's own")
-    paper.add_argument("--out", type=Path, default=Path("out/paper"),
-                       help="the Markdown and CSV tables, and each finished case as it arrives (a rerun skips those)")
-    paper.add_argument("--json", action="store_true", help="print the list of result objects")
-    paper.add_argument("--perturb", action="store_true",
-                       help="each case again with the target moved 1e-9 m along x and with every start joint "
-                            "moved 1e-9 rad: same verdict, executed error within 1 cm?")
-    add_sweep_options(paper)
+    paper_parser = commands.add_parser("paper", help="the paper's nine cases and Tables I-IV")
+    paper_parser.add_argument("--pipeline", choices=("paper", "physical"), default="paper",
+                              help="paper: exactly the paper's problem (Tables I-IV); physical: the planner's own")
+    paper_parser.add_argument("--out", type=Path, default=Path("out/paper"),
+                              help="the Markdown and CSV tables, and each finished case as it arrives (a rerun skips those)")
+    paper_parser.add_argument("--json", action="store_true", help="print the list of result objects")
+    paper_parser.add_argument("--perturb", action="store_true",
+                              help="each case again with the target moved 1e-9 m along x and with every start "
+                                   "joint moved 1e-9 rad: same verdict, executed error within 1 cm?")
+    add_sweep_options(paper_parser)
     targets = commands.add_parser("targets", help="seeded random pushes, judged by their execution")
     targets.add_argument("--n", type=positive_int, default=50, help="goals")
     targets.add_argument("--seed", type=int, default=0)
-    targets.add_argument("--models", nargs="+", default=list(studies.MODELS), choices=studies.MODELS)
+    targets.add_argument("--models", nargs="+", default=list(asks.MODELS), choices=asks.MODELS)
     targets.add_argument("--perturb", type=int, default=0, metavar="K",
                          help="also solve the first K goals with the target moved 1e-9 m and the start 1e-9 rad")
     targets.add_argument("--out", type=Path, default=Path("out/targets"),
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     hard = commands.add_parser("hard", help="cases that stress the numerics")
     hard.add_argument("--out", type=Path, default=Path("out/hard"))
     hard.add_argument("--cases", nargs="+", default=None, help="case names (default: all of config/hard_cases.yaml)")
-    hard.add_argument("--models", nargs="+", default=list(studies.MODELS), choices=studies.MODELS)
+    hard.add_argument("--models", nargs="+", default=list(asks.MODELS), choices=asks.MODELS)
     hard.add_argument("--repeat", type=positive_int, default=1, help="run each case this many times (2: check identity)")
     hard.add_argument("--json", action="store_true", help="print one object per case and contact model")
     add_sweep_options(hard)
@@ -158,6 +158,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="plate-centre heights above the floor (m); the cube's faces span 0.025-0.175 m")
     limits.add_argument("--step", type=float, default=0.005, help="spacing of the plate positions along the push (m)")
     limits.add_argument("--json", action="store_true", help="print one JSON object")
+    hashes = commands.add_parser("plan-hashes", help="the paper's cases and the first targets goals, by plan hash")
+    hashes.add_argument("--goals", type=int, default=10, help="targets goals (seed 0), each with every model")
+    hashes.add_argument("--out", type=Path, default=None, help="write the hashes to this JSON file")
+    add_sweep_options(hashes)
     args = parser.parse_args(argv)
 
     if args.command == "rollout":
@@ -194,17 +198,17 @@ def main(argv: list[str] | None = None) -> int:
             print("median share of the solve: " + ", ".join(
                 f"{name.removesuffix('_time_s')} {share:.0%}" for name, share in result["phase_share_median"].items()))
     elif args.command == "paper":
-        results = benchmarks.paper_benchmark(args.pipeline, perturb=args.perturb, workers=args.workers,
+        results = paper.paper_benchmark(args.pipeline, perturb=args.perturb, workers=args.workers,
                                              address=args.address, out=args.out)
-        paths = benchmarks.write_paper_outputs(results, args.out)
+        paths = paper.write_paper_outputs(results, args.out)
         if args.json:
             print(json.dumps(results))
         else:
-            print(benchmarks.paper_tables(results))
+            print(paper.paper_tables(results))
             print("written: " + ", ".join(str(p) for p in paths))
     elif args.command == "targets":
-        from cito_ros import targets as targets_module
         from cito_ros.settings import load_settings
+        from cito_ros.studies import targets as targets_module
 
         settings = load_settings()
         if args.reference_offsets is not None:
@@ -221,18 +225,18 @@ def main(argv: list[str] | None = None) -> int:
             print(targets_module.markdown(summary))
             print("written: " + ", ".join(str(p) for p in paths))
     elif args.command == "speed-vs-error":
-        variants = [v for v in studies.VARIANTS if v.name in ("default", "max_iter 10")] if args.quick \
-            else list(studies.VARIANTS)
-        cases = studies.SWEEP_CASES[2:3] if args.quick else studies.SWEEP_CASES
-        records = studies.speed_vs_error(variants, cases, workers=args.workers, address=args.address, out=args.out)
-        summary = studies.speed_vs_error_summary(records)
+        variants = [v for v in asks.VARIANTS if v.name in ("default", "max_iter 10")] if args.quick \
+            else list(asks.VARIANTS)
+        cases = asks.SWEEP_CASES[2:3] if args.quick else asks.SWEEP_CASES
+        records = asks.speed_vs_error(variants, cases, workers=args.workers, address=args.address, out=args.out)
+        summary = asks.speed_vs_error_summary(records)
         args.out.mkdir(parents=True, exist_ok=True)
-        table = studies.speed_vs_error_table(summary, sweep.split_failures(records)[1])
+        table = asks.speed_vs_error_table(summary, sweep.split_failures(records)[1])
         (args.out / "speed_vs_error.md").write_text(table)
-        paths = [studies.write_csv(args.out / "speed_vs_error_runs.csv", records),
-                 studies.write_csv(args.out / "speed_vs_error.csv", summary),
+        paths = [asks.write_csv(args.out / "speed_vs_error_runs.csv", records),
+                 asks.write_csv(args.out / "speed_vs_error.csv", summary),
                  args.out / "speed_vs_error.md",
-                 studies.speed_vs_error_plot(summary, args.out / "speed_vs_error.png")]
+                 asks.speed_vs_error_plot(summary, args.out / "speed_vs_error.png")]
         print(json.dumps(summary) if args.json else table)
         print("written: " + ", ".join(str(p) for p in paths), file=sys.stderr if args.json else sys.stdout)
     elif args.command == "hard":
@@ -241,19 +245,19 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown cases {unknown}; choose from {sorted(known)}")
         names = args.cases or list(known)
-        records = studies.hard_cases(args.models, names, args.repeat, workers=args.workers, address=args.address,
+        records = asks.hard_cases(args.models, names, args.repeat, workers=args.workers, address=args.address,
                                      out=args.out)
         args.out.mkdir(parents=True, exist_ok=True)
-        report = studies.hard_report(records)
+        report = asks.hard_report(records)
         (args.out / "hard_cases.md").write_text(report)
         (args.out / "hard_cases.json").write_text(json.dumps(records, indent=1))
-        studies.write_csv(args.out / "hard_cases.csv", records)
+        asks.write_csv(args.out / "hard_cases.csv", records)
         print(json.dumps(records) if args.json else report)
     elif args.command == "collisions":
-        result = studies.collision_cost(10 if args.quick else 50, betas=(7,) if args.quick else (5, 6, 7),
+        result = asks.collision_cost(10 if args.quick else 50, betas=(7,) if args.quick else (5, 6, 7),
                                         workers=args.workers, address=args.address, out=args.out)
         args.out.mkdir(parents=True, exist_ok=True)
-        report = studies.collision_report(result)
+        report = asks.collision_report(result)
         (args.out / "collisions.md").write_text(report)
         (args.out / "collisions.json").write_text(json.dumps(result, indent=1))
         print(json.dumps(result) if args.json else report)
@@ -269,8 +273,15 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as error:  # a step that is not positive
             parser.error(str(error))
         print(json.dumps(result) if args.json else push_limits_table(result))
+    elif args.command == "plan-hashes":
+        hashes = paper.plan_hashes(args.goals, workers=args.workers, address=args.address)
+        text = json.dumps(hashes, indent=1, sort_keys=True)
+        if args.out is not None:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(text)
+        print(text)
     elif args.command == "figures":
-        from cito_ros import figures as figure_module
+        from cito_ros.studies import figures as figure_module
 
         bar = progress_bar(len(figure_module.RUNS) + 1, "figures", "step")  # each plan, then the drawing
         paths = figure_module.figures(args.out, progress=lambda d, n: advance(bar, d, n))

@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 from cito_ros.cli.progress import advance, progress_bar
-from cito_ros.contact_models import CONTACT_MODELS
-from cito_ros.scene import TABLE_TOP_Z_M
+from cito_ros.model.contact_models import CONTACT_MODELS
+from cito_ros.model.scene import TABLE_TOP_Z_M
 from cito_ros.settings import load_settings
 
 

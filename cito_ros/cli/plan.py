@@ -13,9 +13,9 @@ import json
 import sys
 
 from cito_ros.cli.progress import advance, progress_bar
-from cito_ros.contact_models import CONTACT_MODELS
-from cito_ros.planner import plan_push
-from cito_ros.results import IterationLog, PlanResult
+from cito_ros.model.contact_models import CONTACT_MODELS
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.results import IterationLog, PlanResult
 from cito_ros.settings import load_settings
 
 INVALID_REQUEST = "invalid_request"

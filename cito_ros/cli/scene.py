@@ -8,8 +8,8 @@ import argparse
 import json
 import sys
 
-from cito_ros.contact_models import contact_model
-from cito_ros.scene import ARM_JOINTS, Scene, start_configuration
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import ARM_JOINTS, Scene, start_configuration
 from cito_ros.settings import SceneConfig, Settings, load_settings
 
 

@@ -1,0 +1,156 @@
+"""The one way to pose a push problem: settings + request -> scene, simulator, start, task, problem.
+
+ROS-free. `plan_push`, the benchmarks, the studies and the tests all call
+`build_problem`; the task checks (the target on the table, at the object's
+resting height, within the arm's reach) live here and nowhere else.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import TABLE_TOP_Z_M, Scene, start_configuration
+from cito_ros.model.simulator import Simulator
+from cito_ros.planner.problem import PushProblem, StageCost
+from cito_ros.planner.task import PushTask
+from cito_ros.settings import SceneConfig, Settings
+
+
+@dataclass(frozen=True)
+class PushRequest:
+    """What to plan. Unset fields take the settings' values.
+
+    contact_model: 'cccm', 'scm' or 'vscm'.
+    beta: start pose q0(beta); ignored when start_q is given.
+    start_q: (7,) start configuration of the arm (at rest), instead of q0(beta).
+    target_position_m: (x, y) or (x, y, z) of the object's goal, world frame; default
+      task.push_distance_m along +x from the object's start (z: the object's resting height).
+    target_yaw_rad: goal yaw of the object about world z.
+    scene: a scene name in config/scenes (or a scene YAML path).
+    object_pose: ((x, y) or (x, y, z), yaw) of the object where it is now, world frame, instead
+      of the scene's pose (z: its resting height).
+    """
+
+    contact_model: str = "vscm"
+    beta: float | None = None
+    start_q: np.ndarray | None = None
+    target_position_m: np.ndarray | None = None
+    target_yaw_rad: float = 0.0
+    scene: str | None = None
+    object_pose: tuple[np.ndarray, float] | None = None
+
+
+@dataclass(frozen=True)
+class PlanningProblem:
+    """A posed problem and what it was built from."""
+
+    scene: Scene
+    simulator: Simulator
+    initial_state: np.ndarray
+    task: PushTask
+    problem: PushProblem
+    beta: float | None          # None when the request gave start_q
+    initial_distance_m: float   # signed distance between the contact candidates at the start
+
+
+def build_problem(settings: Settings, request: PushRequest) -> PlanningProblem:
+    """Pose `request` under `settings`. Raises ValueError for anything that cannot be planned."""
+    model = contact_model(request.contact_model, settings.contact_models)
+    scene = Scene(model, scene_config(settings, request))
+    horizon_s, control_period_s = settings.horizon
+    simulator = Simulator(scene, horizon_s, control_period_s, nthread=settings.gradient.threads)
+    if request.start_q is None:
+        beta = settings.beta if request.beta is None else request.beta
+        start_q = start_configuration(beta)
+    else:
+        beta, start_q = None, request.start_q
+    check_object_start(scene, start_q)
+    initial_state = scene.initial_state(start_q)
+    task = make_task(scene, initial_state, request.target_position_m, request.target_yaw_rad, settings)
+    problem = PushProblem(simulator, initial_state, task, StageCost.paper(getattr(settings.weights, model.name)),
+                          settings.gradient, settings.task.position_error_scale_min_m)
+    return PlanningProblem(scene, simulator, initial_state, task, problem, beta,
+                           scene.signed_distance(scene.data_at(start_q)))
+
+
+def scene_config(settings: Settings, request: PushRequest) -> SceneConfig:
+    """The request's scene, with the object where the request says it is."""
+    config = settings.scene if request.scene is None else SceneConfig.load(request.scene)
+    if request.object_pose is None:
+        return config
+    position, yaw = request.object_pose
+    position = np.asarray(position, dtype=float)
+    if position.shape not in ((2,), (3,)) or not np.all(np.isfinite(position)) or not math.isfinite(yaw):
+        raise ValueError(f"object pose must be a finite (x, y) or (x, y, z) and yaw, got {position.tolist()}, {yaw}")
+    resting_z = TABLE_TOP_Z_M + config.object.half_size_m
+    if position.shape == (3,) and abs(position[2] - resting_z) > settings.task.target_height_tolerance_m:
+        raise ValueError(f"object pose z {position[2]:.3f} m is not the object's resting height {resting_z:.3f} m "
+                         f"(+-{settings.task.target_height_tolerance_m} m): it must rest on the table")
+    return dataclasses.replace(config, object=dataclasses.replace(
+        config.object, position_m=(float(position[0]), float(position[1])), yaw_rad=float(yaw)))
+
+
+def check_object_start(scene: Scene, start_q: np.ndarray) -> None:
+    """The object must stand wholly on the table, within reach, clear of the arm at its start."""
+    low, high, _ = scene.table_top()
+    obj = scene.config.object
+    centre = np.asarray(obj.position_m, dtype=float)
+    c, s = math.cos(obj.yaw_rad), math.sin(obj.yaw_rad)
+    corners = centre + np.array([[c * x - s * y, s * x + c * y] for x in (-1, 1) for y in (-1, 1)]) * obj.half_size_m
+    if np.any(corners < low) or np.any(corners > high):
+        raise ValueError(f"object pose ({centre[0]:.3f}, {centre[1]:.3f}) m, yaw {obj.yaw_rad:.3f} rad: the object "
+                         f"overhangs the table (x [{low[0]:.3f}, {high[0]:.3f}], y [{low[1]:.3f}, {high[1]:.3f}] m)")
+    reach = scene.push_reach_m()
+    if np.linalg.norm(centre) > reach:
+        raise ValueError(f"object pose ({centre[0]:.3f}, {centre[1]:.3f}) m is {np.linalg.norm(centre):.3f} m from "
+                         f"the arm base, beyond the {reach:.3f} m the arm can push it from")
+    data = scene.data_at(start_q)
+    model = scene.model
+    for geom in range(model.ngeom):
+        if model.geom_bodyid[geom] in (0, scene.object_body_id):
+            continue
+        distance = mujoco.mj_geomDistance(model, data, geom, scene.object_geom_id, 0.01, None)
+        if distance < 0:
+            raise ValueError(f"object pose ({centre[0]:.3f}, {centre[1]:.3f}) m, yaw {obj.yaw_rad:.3f} rad: the "
+                             f"object intersects the arm's {model.geom(geom).name} at its start pose "
+                             f"(by {-distance * 1000:.1f} mm)")
+
+
+def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target_yaw_rad: float,
+              settings: Settings) -> PushTask:
+    """The push target, checked against what pushing on this table can reach."""
+    start = scene.object_qpos(initial_state)[:3]
+    if target_position_m is None:
+        target = start + np.array([settings.task.push_distance_m, 0.0, 0.0])
+    else:
+        target = np.asarray(target_position_m, dtype=float)
+        if target.shape == (2,):
+            target = np.array([target[0], target[1], start[2]])
+        if target.shape != (3,):
+            raise ValueError(f"target position must be (x, y) or (x, y, z), got shape {target.shape}")
+    low, high, _ = scene.table_top()
+    half = float(scene.object_half_size[0])
+    if np.any(target[:2] < low + half) or np.any(target[:2] > high - half):
+        raise ValueError(f"target ({target[0]:.3f}, {target[1]:.3f}) m is off the "
+                         f"table: the object must end within x [{low[0] + half:.3f}, {high[0] - half:.3f}], "
+                         f"y [{low[1] + half:.3f}, {high[1] - half:.3f}] m")
+    height_tolerance = settings.task.target_height_tolerance_m
+    if abs(target[2] - start[2]) > height_tolerance:
+        raise ValueError(f"target z {target[2]:.3f} m is not the object's resting height "
+                         f"{start[2]:.3f} m (+-{height_tolerance} m): pushing cannot lift it")
+    # a pushed object ends at its resting height: a z within the tolerance says "on the table", so the
+    # same goal with another such z (the table top plus the half edge is 0.1 mm above the settled cube)
+    # is the same problem and the same plan
+    task = PushTask(np.array([target[0], target[1], start[2]]), target_yaw_rad)
+    reach = scene.push_reach_m()
+    distance = float(np.linalg.norm(task.target_position_m[:2]))
+    if distance > reach:
+        raise ValueError(f"target is {distance:.3f} m from the arm base, beyond the {reach:.3f} m the arm can push "
+                         f"the object's centre to (the plate's reach at the object's height, plus the plate's "
+                         f"radius and the object's half size)")
+    return task

@@ -1,0 +1,101 @@
+"""A stage's plan as a candidate: its torques executed without the virtual force, judged where the object
+comes to rest, tracked, and ranked. ROS-free.
+
+A stage without the virtual force ends as soon as its plan, executed, is at the goal with a margin
+(`stages.goal_margin`), and the start with it. Every stage's torques, executed without the virtual
+force, are a candidate; the plan returned is the first start's that succeeds and that a PD joint
+trajectory controller follows (its tracked execution within tracking.max_error_increase_m of the
+executed error; with tracking.reference_offsets, also to the goal with its reference slightly off), or
+else the best of all (within the arm's speed limits and ranges first, then at the goal, then followed,
+then followed with the offsets, then closest to it). A script's success short of the goal margin is the one
+exception: the scripts after it run too, and the best of them is returned.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cito_ros.planner import tracking
+from cito_ros.planner.problem import PushProblem
+from cito_ros.settings import Settings, TrackingSettings
+
+
+@dataclass(frozen=True)
+class Executed:
+    """A candidate's torques executed without the virtual force (and, at the end of a stage, tracked)."""
+
+    position_error_m: float
+    orientation_error_rad: float
+    max_joint_speed_ratio: float
+    joint_range_excess_rad: float
+    tracked_position_error_m: float = math.nan  # by a PD joint trajectory controller; nan: not tracked
+    offset_tracked_error_m: float = math.nan    # the worst with the reference off (tracking.reference_offsets)
+
+    def rank(self, settings: Settings) -> tuple:
+        task = settings.task
+        at_goal = (self.position_error_m < task.success_position_error_m
+                   and self.orientation_error_rad < task.success_orientation_error_rad)
+        beyond_limits = (self.max_joint_speed_ratio > settings.limits.max_joint_speed_ratio
+                         or self.joint_range_excess_rad > 0.0)
+        # comparisons, not math.isnan: an untracked candidate is never taken for a trackable one
+        trackable = self.tracked_position_error_m - self.position_error_m <= settings.tracking.max_error_increase_m
+        # with reference offsets, followed to the goal also with the reference slightly off; ranked after
+        # the nominal tracking, so that where no start gives such a plan the best is one the controller follows
+        sturdy = not settings.tracking.reference_offsets or all(
+            error < task.success_position_error_m for error in (self.tracked_position_error_m,
+                                                                 self.offset_tracked_error_m))
+        return (beyond_limits, not at_goal, not trackable, not sturdy,
+                self.position_error_m / task.success_position_error_m
+                + self.orientation_error_rad / task.success_orientation_error_rad)
+
+    @staticmethod
+    def succeeds(rank: tuple) -> bool:
+        """Whether a rank ends the search: within the arm's limits, at the goal, and followed by a joint
+        trajectory controller to within tracking.max_error_increase_m of the executed error (and with
+        tracking.reference_offsets, to the goal under each offset and without)."""
+        beyond_limits, away, untrackable, fragile, _ = rank
+        return not beyond_limits and not away and not untrackable and not fragile
+
+    def reaches(self, settings: Settings) -> bool:
+        """Whether it is at the goal with the margin that ends the stages early (stages.goal_margin):
+        within that fraction of the success tolerances and of the arm's limits."""
+        task, limits, margin = settings.task, settings.limits, settings.stages.goal_margin
+        return (self.position_error_m < margin * task.success_position_error_m
+                and self.orientation_error_rad < margin * task.success_orientation_error_rad
+                and self.max_joint_speed_ratio <= limits.max_joint_speed_ratio and self.joint_range_excess_rad == 0.0)
+
+
+def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings) -> Executed:
+    """The executed errors and arm limits of torques, by `executor` (no virtual force), the error of the
+    executed joint trajectory tracked by a PD controller with `gains` (cito_ros.planner.tracking), and the worst
+    error of that tracking with the reference off by each of gains.reference_offsets seeded smooth offsets
+    (the same for every plan) of up to gains.reference_offset_rad."""
+    evaluation = executor.evaluate(executor.with_torques(torques))
+    executed = judge(executor, evaluation, gains)
+    if not math.isfinite(executed.position_error_m):
+        return executed
+    simulator, trajectory = executor.simulator, executor.trajectory(evaluation.z)
+    offset_errors = tracking.offset_position_errors_m(simulator, executor.initial_state, trajectory, gains,
+                                                      executor.task, gains.reference_offsets,
+                                                      gains.reference_offset_rad, seed=12345)  # the same for every plan
+    tracked_error = tracking.tracked_rest_error_m(simulator, executor.initial_state, trajectory, executor.task, gains)
+    return dataclasses.replace(executed, tracked_position_error_m=tracked_error,
+                               offset_tracked_error_m=max(offset_errors, default=math.nan))
+
+
+def judge(executor: PushProblem, evaluation, gains: TrackingSettings) -> Executed:
+    """The executed errors where the object comes to rest (tracking.rest_errors, the arm holding its last
+    position for gains.hold_s) and the arm limits over the horizon of an evaluation of `executor` (no
+    virtual force), untracked."""
+    if not evaluation.finite:
+        return Executed(math.inf, math.inf, math.inf, math.inf)
+    scene = executor.scene
+    position_error, angle_error = tracking.rest_errors(executor.simulator, evaluation.states[-1], executor.task, gains)
+    if not math.isfinite(position_error):
+        return Executed(math.inf, math.inf, math.inf, math.inf)
+    speeds = np.abs(scene.arm_qvel(evaluation.states)) / scene.velocity_limit  # to the end
+    return Executed(position_error, angle_error, float(speeds.max()),
+                    scene.joint_range_excess(scene.arm_qpos(evaluation.states)))

@@ -1,0 +1,139 @@
+"""Plan a push: the one entry point, and the evaluation of a plan.
+
+ROS-free. `plan_push` is in the style of mujoco.minimize: typed arguments,
+precise ValueErrors, a `Status` enum, an `IterationLog` per iteration to an
+optional callback, and cancellation from another thread through a
+`threading.Event`. It poses the problem (cito_ros.planner.builder), runs the stages of
+the configured pipeline (cito_ros.planner.stages), and returns a `PlanResult`
+(cito_ros.planner.results) whose trajectory is the plan executed without the virtual
+force, as the robot will execute it.
+"""
+from __future__ import annotations
+
+import math
+import threading
+from typing import Callable
+
+import numpy as np
+
+from cito_ros.planner import tracking
+from cito_ros.planner.builder import PlanningProblem, PushRequest, build_problem
+from cito_ros.planner.physical import solve_physical
+from cito_ros.planner.results import IterationLog, Metrics, PlanResult, Status
+from cito_ros.planner.stages import Outcome, solve_paper
+from cito_ros.settings import Settings, load_settings
+
+
+def plan_push(
+    contact_model: str = "vscm",
+    beta: float | None = None,
+    *,
+    target_position_m: np.ndarray | None = None,
+    target_yaw_rad: float = 0.0,
+    start_q: np.ndarray | None = None,
+    scene: str | None = None,
+    object_pose: tuple[np.ndarray, float] | None = None,
+    settings: Settings | None = None,
+    iteration_callback: Callable[[IterationLog], None] | None = None,
+    cancel: threading.Event | None = None,
+) -> PlanResult:
+    """Plan a push of the scene's object to a target pose, starting from zero torques.
+
+    Args:
+      contact_model: 'cccm', 'scm' or 'vscm'.
+      beta: start pose q0(beta); default the settings' beta. Ignored if start_q is given.
+      target_position_m: (x, y) or (x, y, z) of the object's goal, world frame; default
+        `task.push_distance_m` along +x from the object's start (z is the object's resting height).
+      target_yaw_rad: goal yaw of the object about world z.
+      start_q: (7,) start configuration of the arm (at rest), instead of q0(beta).
+      scene: scene name in config/scenes (default: the settings' scene).
+      object_pose: ((x, y) or (x, y, z), yaw) where the object is now, world frame (default: the
+        scene's pose); it must stand on the table, clear of the arm, within reach.
+      settings: planner settings (default: config/planner.yaml); `pipeline` selects the physical
+        pipeline or exactly the paper's problem.
+      iteration_callback: called with an IterationLog after every solver iteration (from the
+        solving threads; calls are serialized).
+      cancel: when set (from any thread), the solve stops at the next iteration and
+        returns its best plan with status CANCELLED.
+
+    Raises:
+      ValueError: for an unknown contact model, a bad beta, start configuration, target or scene.
+    """
+    settings = load_settings() if settings is None else settings
+    request = PushRequest(contact_model, beta, start_q, target_position_m, target_yaw_rad, scene, object_pose)
+    posed = build_problem(settings, request)
+    if settings.pipeline == "paper":
+        outcome = solve_paper(posed, settings, iteration_callback=iteration_callback, cancel=cancel)
+    else:
+        outcome = solve_physical(settings, request, iteration_callback=iteration_callback, cancel=cancel)
+    return evaluate_plan(outcome, posed, settings)
+
+
+def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) -> PlanResult:
+    """Simulate the plan: with the virtual force as planned, executed without it, and tracked by a
+    PD joint trajectory controller; compute the metrics."""
+    discovery, executor = outcome.discovery, outcome.executor
+    simulator, task = discovery.simulator, discovery.task
+    _, variables = discovery.split(outcome.planned_z)
+    planned = discovery.trajectory(outcome.planned_z)
+    trajectory = executor.trajectory(executor.with_torques(outcome.torques))
+    tracked = tracking.track(simulator, discovery.initial_state, trajectory, settings.tracking)
+
+    # where the object comes to rest once the arm holds its last position: a plan may end with it sliding
+    rest = tracking.held_motion(simulator, trajectory.final_state, settings.tracking)
+    tracked_rest = tracking.held_motion(simulator, tracked.final_state, settings.tracking)
+    position_error, orientation_error = tracking.errors_at_rest(rest, task)
+    planned_position_error, planned_orientation_error = task.final_errors(planned)  # the paper's, at T
+    tracked_position_error, tracked_orientation_error = tracking.errors_at_rest(tracked_rest, task)
+    speed_ratio = float(np.max(np.abs(trajectory.qdot) / discovery.scene.velocity_limit))
+    range_excess = discovery.scene.joint_range_excess(trajectory.q)
+    status = outcome.status
+    if not (trajectory.finite and planned.finite) or trajectory.warnings or planned.warnings \
+            or not math.isfinite(position_error):  # NaN: MuJoCo warned while the arm held its last position
+        status = Status.NUMERICAL_ERROR
+    usable = status is not Status.NUMERICAL_ERROR and math.isfinite(position_error)
+    metrics = Metrics(
+        position_error_m=position_error,
+        orientation_error_rad=orientation_error,
+        tracked_position_error_m=tracked_position_error,
+        tracked_orientation_error_rad=tracked_orientation_error,
+        planned_position_error_m=planned_position_error,
+        planned_orientation_error_rad=planned_orientation_error,
+        physical_inaccuracy_Ns=float(simulator.timestep_s * np.sum(planned.gamma_N)),
+        max_joint_speed_ratio=speed_ratio,
+        joint_range_excess_rad=range_excess,
+        final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(trajectory.final_state)[:3])),
+        solve_time_s=outcome.solve_time_s,
+        setup_time_s=outcome.setup_s,
+        rollout_time_s=sum(record.rollout_s for record in outcome.stages),
+        linearization_time_s=sum(record.linearization_s for record in outcome.stages),
+        solver_time_s=sum(record.solver_s for record in outcome.stages),
+        evaluation_time_s=sum(record.evaluation_s for record in outcome.stages),
+        iterations=sum(record.iterations for record in outcome.stages),
+        status=status,
+        success=bool(usable and position_error < settings.task.success_position_error_m
+                     and orientation_error < settings.task.success_orientation_error_rad
+                     and speed_ratio <= settings.limits.max_joint_speed_ratio and range_excess == 0.0),
+        planned_success=bool(usable and planned_position_error < settings.task.planned_success_position_error_m),
+    )
+    return PlanResult(
+        contact_model=discovery.contact_model.name,
+        beta=posed.beta,
+        initial_distance_m=posed.initial_distance_m,
+        target_position_m=task.target_position_m.copy(),
+        target_yaw_rad=task.target_yaw_rad,
+        knot_time_s=np.arange(discovery.n_knots + 1) * simulator.control_period_s,
+        knot_torques_Nm=np.array(outcome.torques, dtype=float),
+        knot_contact_control=discovery.contact_control(variables).copy(),
+        knot_variables={v.name: variables[:, i].copy() for i, v in enumerate(discovery.variables)},
+        trajectory=trajectory,
+        planned=planned,
+        tracked=tracked,
+        rest=rest,
+        tracked_rest=tracked_rest,
+        metrics=metrics,
+        iteration_log=outcome.log,
+        stages=outcome.stages,
+        derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
+        scene=discovery.scene,
+    )

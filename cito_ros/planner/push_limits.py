@@ -1,0 +1,151 @@
+"""How far the arm can push the object steadily, and how little releasing it at speed adds: the
+kinematic bound behind the near-reach lottery (README: where a steady push ends). ROS-free.
+
+The push reach (Scene.push_reach_m) counts the plate's rim at full stretch. A steady push keeps the
+plate's face on the object's face, and a push can also end in a release, the object sliding on after
+the plate stops. At each plate position along a radial push line, at a fixed height, this module
+finds the fastest plate speed along the push that the joint velocity limits allow while the plate
+holds its height (and, for the face, its orientation): a linear program in the joint velocities,
+solved exactly by enumerating the vertices of its feasible polytope (7 variables, at most 4
+equalities: 35 bases, 2^3 signs each). The object released at that speed comes to rest one MuJoCo
+slide further on. The largest rest distance over the positions is an upper bound on where a push
+whose plate holds its height can leave the object: the joint torques, the object tipping under a
+hard push, and the time to speed up only lower it. Beyond it the object must be struck.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mujoco import minimize
+
+from cito_ros.model.scene import Scene
+from cito_ros.model.simulator import FULL_PHYSICS
+
+CONTACTS = ("face", "rim")  # the plate's face along the push; any orientation, the rim leading
+
+
+@dataclass(frozen=True)
+class PushLimit:
+    """One plate position on the push line, for one kind of contact."""
+
+    contact: str                 # "face" or "rim"
+    plate_height_m: float        # plate centre above the world origin
+    plate_distance_m: float      # plate centre from the arm base, along the (radial) push
+    object_distance_m: float     # object centre from the arm base with the plate on its face
+    release_speed_m_s: float     # fastest plate speed along the push within the joint velocity limits
+    slide_m: float               # how far the object slides on when released at that speed (MuJoCo)
+
+    @property
+    def rest_distance_m(self) -> float:
+        return self.object_distance_m + self.slide_m
+
+
+def fastest_push_m_s(jacp: np.ndarray, jacr: np.ndarray, along: np.ndarray, velocity_limit: np.ndarray,
+                     hold_orientation: bool) -> float:
+    """The largest plate-centre speed along `along` (unit, horizontal) with |qdot_j| <= velocity_limit_j,
+    the plate's sideways and vertical velocity zero and, with hold_orientation, its normal (the site's z
+    axis, here `along`) not turning. jacp, jacr: (3, 7) the site's Jacobians in the arm's joints."""
+    side = np.array([-along[1], along[0], 0.0])
+    rows = [side @ jacp, jacp[2]]
+    if hold_orientation:  # the normal turns only by rotations about the two axes normal to it
+        rows += [side @ jacr, jacr[2]]
+    equalities = np.array(rows)
+    objective = along @ jacp
+    n, k = len(velocity_limit), len(rows)
+    best = 0.0
+    for basic in itertools.combinations(range(n), k):
+        square = equalities[:, basic]
+        if abs(np.linalg.det(square)) < 1e-12:
+            continue
+        bound = [j for j in range(n) if j not in basic]
+        for signs in itertools.product((-1.0, 1.0), repeat=n - k):
+            qdot = np.zeros(n)
+            qdot[bound] = np.array(signs) * velocity_limit[bound]
+            qdot[list(basic)] = np.linalg.solve(square, -equalities[:, bound] @ qdot[bound])
+            if np.all(np.abs(qdot) <= velocity_limit * (1.0 + 1e-9)):
+                best = max(best, float(objective @ qdot))
+    return best
+
+
+def slide_m(scene: Scene, speed_m_s: float, initial_state: np.ndarray, seconds: float = 2.0) -> float:
+    """How far the object, at rest in initial_state with the arm clear of it, slides along world +x on the
+    table when set moving at speed_m_s (MuJoCo, the scene's friction), by the end of `seconds`."""
+    model, data = scene.model, mujoco.MjData(scene.model)
+    mujoco.mj_setState(model, data, initial_state, FULL_PHYSICS)
+    start = data.qpos[scene.object_qpos_adr]
+    data.qvel[scene.object_dof_adr] = speed_m_s
+    for _ in range(int(round(seconds / model.opt.timestep))):
+        mujoco.mj_step(model, data)
+    return float(data.qpos[scene.object_qpos_adr] - start)
+
+
+def push_limits(scene: Scene, initial_state: np.ndarray, plate_heights_m: tuple[float, ...],
+                start_m: float = 0.95, step_m: float = 0.005, margin_rad: float = 0.05) -> list[PushLimit]:
+    """Every kind of contact at every plate height, along the world +x push line through the arm base,
+    the object's slides simulated from initial_state (the object at rest, the arm clear of it),
+    from start_m outwards in step_m until the plate cannot reach (inverse kinematics by
+    mujoco.minimize.least_squares within the joint ranges less margin_rad, from the last solution and
+    stretched starts; positions within 1 mm, the face's normal within 1e-2)."""
+    if step_m <= 0.0 or not plate_heights_m:
+        raise ValueError(f"a scan needs a positive step and at least one height, got {step_m} and {plate_heights_m}")
+    model, data = scene.model, mujoco.MjData(scene.model)
+    low, high = scene.joint_range[:, 0] + margin_rad, scene.joint_range[:, 1] - margin_rad
+    site, qadr, dofs = scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
+    along = np.array([1.0, 0.0, 0.0])
+    half = float(scene.object_half_size[0])
+    stretched = [np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
+                 for j3 in (0.0, 0.5, -0.5) for j5 in (0.5, -0.5, 1.2)]
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    slides: dict[float, float] = {}
+    limits = []
+    for contact in CONTACTS:
+        face = contact == "face"
+        for height in plate_heights_m:
+            previous: list[np.ndarray] = []
+            distance = start_m
+            while True:
+                goal = np.array([distance, 0.0, height])
+
+                def residual(x: np.ndarray) -> np.ndarray:
+                    out = np.empty((6 if face else 3, x.shape[1]))
+                    for column, q in enumerate(x.T):
+                        data.qpos[qadr] = q
+                        mujoco.mj_kinematics(model, data)
+                        error = 10.0 * (data.site_xpos[site] - goal)
+                        out[:, column] = np.r_[error, data.site_xmat[site][2::3] - along] if face else error
+                    return out
+
+                speeds = []
+                solutions = []
+                for start in previous + stretched:
+                    q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=100)
+                    data.qpos[qadr] = q
+                    mujoco.mj_kinematics(model, data)
+                    mujoco.mj_comPos(model, data)
+                    if np.linalg.norm(data.site_xpos[site] - goal) > 1e-3 or \
+                            (face and np.linalg.norm(data.site_xmat[site][2::3] - along) > 1e-2):
+                        continue
+                    mujoco.mj_jacSite(model, data, jacp, jacr, site)
+                    speeds.append(fastest_push_m_s(jacp[:, dofs], jacr[:, dofs], along, scene.velocity_limit, face))
+                    solutions.append(q)
+                if not speeds:
+                    break
+                previous = [solutions[int(np.argmax(speeds))]]
+                speed = round(max(speeds), 3)  # the slide is simulated once per speed, to the millimetre per second
+                if speed not in slides:
+                    slides[speed] = slide_m(scene, speed, initial_state)
+                ahead = scene.plate_half_thickness_m if face else scene.plate_radius_m
+                limits.append(PushLimit(contact, height, distance, distance + ahead + half, max(speeds), slides[speed]))
+                distance = round(distance + step_m, 9)
+    return limits
+
+
+def farthest(limits: list[PushLimit], contact: str) -> PushLimit:
+    """The position of `contact` that leaves the object farthest."""
+    rows = [row for row in limits if row.contact == contact]
+    if not rows:
+        raise ValueError(f"no reachable position for the {contact} contact")
+    return max(rows, key=lambda row: row.rest_distance_m)

@@ -1,0 +1,70 @@
+"""The push task: where the object should end, and the pose error of a final object pose.
+
+ROS-free. Orientation errors are the Euler angles (roll, pitch, yaw) of the
+object's rotation relative to the target rotation (a yaw about world z).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cito_ros.settings.typed_config import require_finite
+
+
+def euler_angles(rotation: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw (rad) of a rotation matrix, R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    return np.array([
+        math.atan2(rotation[2, 1], rotation[2, 2]),
+        math.asin(max(-1.0, min(1.0, -rotation[2, 0]))),
+        math.atan2(rotation[1, 0], rotation[0, 0]),
+    ])
+
+
+def yaw_rotation(yaw_rad: float) -> np.ndarray:
+    """The rotation matrix of a yaw about world z."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
+    rotation = np.empty(9)
+    mujoco.mju_quat2Mat(rotation, quaternion / np.linalg.norm(quaternion))
+    return rotation.reshape(3, 3)
+
+
+@dataclass(frozen=True)
+class PushTask:
+    """Where the object should end: position (m, world) and yaw (rad) about world z."""
+
+    target_position_m: np.ndarray
+    target_yaw_rad: float = 0.0
+
+    def __post_init__(self):
+        position = np.asarray(self.target_position_m, dtype=float)
+        if position.shape != (3,):
+            raise ValueError(f"target position must have 3 coordinates, got shape {position.shape}")
+        if not np.all(np.isfinite(position)):
+            raise ValueError("target position contains NaN or Inf")
+        object.__setattr__(self, "target_position_m", position)
+        object.__setattr__(self, "target_yaw_rad", require_finite("target yaw", self.target_yaw_rad))
+
+    @property
+    def target_rotation(self) -> np.ndarray:
+        return yaw_rotation(self.target_yaw_rad)
+
+    def angle_error(self, quaternion: np.ndarray) -> np.ndarray:
+        """Euler angles (rad) of an object orientation (w, x, y, z) relative to the target."""
+        return euler_angles(self.target_rotation.T @ quaternion_matrix(quaternion))
+
+    def final_errors(self, trajectory) -> tuple[float, float]:
+        """Position (m) and orientation (rad) error norms of a Trajectory's last object pose."""
+        position_error, angle_error = self.pose_error(
+            np.concatenate([trajectory.object_position_m[-1], trajectory.object_quaternion[-1]]))
+        return float(np.linalg.norm(position_error)), float(np.linalg.norm(angle_error))
+
+    def pose_error(self, object_qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position error vector (m) and Euler-angle error (rad) of an object pose (x y z qw qx qy qz)."""
+        return object_qpos[:3] - self.target_position_m, self.angle_error(object_qpos[3:7])

@@ -1,0 +1,130 @@
+"""A plan executed the way a robot's joint trajectory controller would: PD tracking of the planned
+joint positions and velocities with gravity (bias) compensation, no virtual force.
+
+ROS-free. The controller runs every simulation step: tau = clamp(kp (q_ref - q) + kd (qdot_ref -
+qdot)) + C^(q, qdot), where the clamp is the motor limit and C^ comes from the same compensated
+motors the planner uses (cito.compensated_motor). The gains are the settings' `tracking` section.
+
+After the last point the controller holds it at rest (`held_motion`), and a push is judged where the
+object is then (`rest_errors`): a plan may end with the object still sliding, and what the robot delivers is
+where it stops.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import mujoco
+import numpy as np
+
+from cito_ros.model import _native
+from cito_ros.model.simulator import Simulator, Trajectory, warning_counts
+from cito_ros.settings import TrackingSettings
+
+
+class JointReference(Protocol):
+    """What the controller tracks: joint positions and velocities (n_steps + 1, 7) at every state (a
+    Trajectory, or a JointPath)."""
+
+    q: np.ndarray
+    qdot: np.ndarray
+
+
+@dataclass(frozen=True)
+class JointPath:
+    """Joint positions and velocities (n_steps + 1, 7) over the states of a horizon: the scripted start's
+    path (cito_ros.planner.scripted), or a plan's reference moved by an offset."""
+
+    q: np.ndarray
+    qdot: np.ndarray
+
+
+def smooth_offset(rng: np.random.Generator, n_knots: int, n_states: int,
+                  timestep_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A seeded random joint offset (n_states, 7), within [-1, 1] for every joint, drawn at the horizon's
+    n_knots + 1 knot times and linear between them (a servo's steady error, smooth enough for the
+    controller to follow), and its rate (per second)."""
+    corners = rng.uniform(-1.0, 1.0, (n_knots + 1, 7))
+    times = np.linspace(0.0, n_knots, n_states)
+    offset = np.stack([np.interp(times, np.arange(n_knots + 1), corners[:, j]) for j in range(7)], axis=1)
+    return offset, np.gradient(offset, timestep_s, axis=0)
+
+
+def offset_references(reference: JointReference, n_knots: int, timestep_s: float, count: int, amplitude_rad: float,
+                      seed: int) -> list[JointPath]:
+    """`reference` moved by `count` smooth offsets (smooth_offset) of up to amplitude_rad, drawn from `seed`."""
+    rng = np.random.default_rng(seed)
+    moved = []
+    for _ in range(count):
+        offset, rate = smooth_offset(rng, n_knots, len(reference.q), timestep_s)
+        moved.append(JointPath(reference.q + amplitude_rad * offset, reference.qdot + amplitude_rad * rate))
+    return moved
+
+
+def offset_position_errors_m(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
+                             gains: TrackingSettings, task, count: int, amplitude_rad: float, seed: int) -> list[float]:
+    """The task's position errors at rest (tracked_rest_error_m) of `reference` tracked with each of its
+    offset_references."""
+    return [tracked_rest_error_m(simulator, initial_state, moved, task, gains)
+            for moved in offset_references(reference, simulator.n_knots, simulator.timestep_s, count, amplitude_rad,
+                                           seed)]
+
+
+def held_motion(simulator: Simulator, state: np.ndarray, gains: TrackingSettings) -> Trajectory | None:
+    """The execution continued from `state` (where it ends) with the controller holding the arm's joint
+    positions of `state` at rest for gains.hold_s (a joint trajectory controller past its last point), no
+    virtual force; None when `state` is not finite. Its warnings are MuJoCo's on the way."""
+    if not np.all(np.isfinite(state)):
+        return None
+    scene = simulator.scene
+    steps = round(gains.hold_s / simulator.timestep_s)
+    held = state[scene.state_qpos_adr + scene.arm_qpos_adr]
+    return pd_motion(simulator, state, np.tile(held, (steps, 1)), np.zeros((steps, len(held))), gains)
+
+
+def errors_at_rest(held: Trajectory | None, task) -> tuple[float, float]:
+    """Position (m) and orientation (rad) error norms of the object against `task` at the end of a
+    held_motion: where the object ends. NaN without one, or when MuJoCo warned on the way (its automatic
+    reset is no rest pose)."""
+    if held is None or held.warnings:
+        return math.nan, math.nan
+    return task.final_errors(held)
+
+
+def rest_errors(simulator: Simulator, state: np.ndarray, task, gains: TrackingSettings) -> tuple[float, float]:
+    """errors_at_rest of the execution that ends at `state`, continued by held_motion."""
+    return errors_at_rest(held_motion(simulator, state, gains), task)
+
+
+def tracked_rest_error_m(simulator: Simulator, initial_state: np.ndarray, reference: JointReference, task,
+                         gains: TrackingSettings) -> float:
+    """The position error at rest (rest_errors) of `reference` tracked from initial_state (track)."""
+    return rest_errors(simulator, track(simulator, initial_state, reference, gains).final_state, task, gains)[0]
+
+
+def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
+          gains: TrackingSettings) -> Trajectory:
+    """Execute `reference` under PD control from initial_state."""
+    steps = simulator.n_steps
+    return pd_motion(simulator, initial_state, reference.q[:steps], reference.qdot[:steps], gains)
+
+
+def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray, qdot_ref: np.ndarray,
+              gains: TrackingSettings) -> Trajectory:
+    """len(q_ref) steps from initial_state, the controller's motor torques before step t
+    clamp(kp (q_ref[t] - q) + kd (qdot_ref[t] - qdot)) to the motor limits, every other control zero; natively
+    (cito_track; cito_ros.model.oracle.pd_motion is the same in Python)."""
+    scene, model = simulator.scene, simulator.model
+    steps = len(q_ref)
+    states = np.empty((steps, simulator.nstate))
+    sensordata = np.empty((steps, model.nsensordata))
+    controls = np.empty((steps, model.nu))
+    warnings = np.zeros(mujoco.mjtWarning.mjNWARNING.value, dtype=np.int32)
+    indices = (np.asarray(a, dtype=np.int32) for a in (scene.arm_qpos_adr, scene.arm_dof_adr, scene.motor_ids))
+    floats = (np.ascontiguousarray(a, dtype=float) for a in (initial_state, q_ref, qdot_ref, gains.kp, gains.kd,
+                                                            scene.torque_limit))
+    data = mujoco.MjData(model)  # a fresh one per motion: starts may run side by side
+    _native.track(model._address, data._address, steps, len(scene.motor_ids), *floats, *indices, states, sensordata,
+                  controls, warnings)
+    return simulator.trajectory(initial_state, states, sensordata, controls, warning_counts(warnings))

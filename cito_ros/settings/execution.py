@@ -1,0 +1,41 @@
+"""How a plan is executed and judged: the arm's limits and the joint trajectory controller."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cito_ros.settings.typed_config import setting
+
+
+@dataclass(frozen=True)
+class LimitSettings:
+    joint_speed_weight: float = setting("the discovery's weight of (|qdot| / limit - margin)^2 beyond the margin",
+                                        minimum=0.0)
+    joint_speed_margin: float = setting("fraction of the velocity limit where the speed term starts", positive=True)
+    max_joint_speed_ratio: float = setting("a plan faster than this fraction of a velocity limit is no success",
+                                           positive=True)
+    joint_position_weight: float = setting("the discovery's weight of the joint positions beyond their margin",
+                                           minimum=0.0)
+    joint_position_margin_rad: float = setting("margin inside each joint's range (rad)", minimum=0.0)
+    object_velocity_weight: float = setting("weight of the object's final velocity", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    kp: tuple[float, ...] = setting("PD position gains of the joint trajectory controller (N m/rad)", minimum=0.0)
+    kd: tuple[float, ...] = setting("PD velocity gains (N m s/rad)", minimum=0.0)
+    max_error_increase_m: float = setting(
+        "physical pipeline: a start's plan at the goal ends the search only if the PD controller's execution "
+        "ends within this of its executed error; otherwise the next starts run (m)", minimum=0.0)
+    reference_offsets: int = setting(
+        "physical pipeline: seeded smooth offsets of the tracked reference; a start's plan at the goal ends the "
+        "search only if the PD controller brings the object within the success tolerance under every one and "
+        "without them (where no start's does, the best plan is one it follows without them); 0: the nominal "
+        "tracking alone, within max_error_increase_m", minimum=0)
+    reference_offset_rad: float = setting("the largest offset of any joint (rad)", minimum=0.0)
+    hold_s: float = setting(
+        "after a plan's last point the controller holds it at rest this long, as a joint trajectory controller "
+        "does; every execution is judged where the object is then, not at the end of the horizon (s)", minimum=0.0)
+
+    def check(self, path: str) -> None:
+        if len(self.kp) != 7 or len(self.kd) != 7:
+            raise ValueError(f"{path}.kp and {path}.kd must have one gain per arm joint (7)")

@@ -1,0 +1,136 @@
+"""The physical pipeline's stages: the scripted starts, the discovery, the stages without the virtual force."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from cito_ros.settings.typed_config import setting
+
+
+@dataclass(frozen=True)
+class DiscoverySettings:
+    reach_weight: float = setting("weight of the plate-object gap, squared, from the start's fraction of the "
+                                  "horizon on", minimum=0.0)
+    max_iter: int = setting("solver iterations of the discovery", minimum=1)
+    cccm: str = setting("CCCM's discovery: slack_eliminated (s = phi gamma: box-bounded, solved by stages.solver) "
+                        "or constraints (the paper's slack and constraints, by IPOPT)",
+                        choices=("slack_eliminated", "constraints"))
+
+
+@dataclass(frozen=True)
+class PhysicalStage:
+    """One stage without the virtual force (see PhysicalStages)."""
+
+    contact_weight: float
+    joint_speed_weight: float
+    joint_position_weight: float
+    max_iter: int
+    only_if_beyond_limits: bool
+
+
+@dataclass(frozen=True)
+class PhysicalStages:
+    """The stages without the virtual force, one entry of each list per stage, in order."""
+
+    contact_weight: tuple[float, ...] = setting("weight of the plate-object gap, squared, from the touch-down on",
+                                                minimum=0.0)
+    joint_speed_weight: tuple[float, ...] = setting("weight of the joint speeds beyond their margin", minimum=0.0)
+    joint_position_weight: tuple[float, ...] = setting("weight of the joint positions beyond their margin",
+                                                       minimum=0.0)
+    max_iter: tuple[int, ...] = setting("solver iterations of the stage", minimum=1)
+    only_if_beyond_limits: tuple[bool, ...] = setting("run only while the best plan so far is beyond the arm's "
+                                                      "limits (joint speeds or ranges)")
+
+    def check(self, path: str) -> None:
+        lengths = {len(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        if len(lengths) != 1 or 0 in lengths:
+            raise ValueError(f"{path} must list at least one stage, with one entry per stage in each of "
+                             f"{[f.name for f in dataclasses.fields(self)]}")
+        if self.only_if_beyond_limits[0]:
+            raise ValueError(f"{path}.only_if_beyond_limits[0] must be false: the first stage refines every start")
+
+    def __iter__(self):
+        return (PhysicalStage(*values) for values in zip(self.contact_weight, self.joint_speed_weight,
+                                                           self.joint_position_weight, self.max_iter,
+                                                           self.only_if_beyond_limits))
+
+
+@dataclass(frozen=True)
+class ScriptVariants:
+    """Further scripted starts, one entry of each list per start, in order: the scripted push again with
+    these values, after the first script and before the discoveries."""
+
+    contact_height_m: tuple[float, ...] = setting("the variant's contact_height_m (m)")
+    push_end_fraction: tuple[float, ...] = setting("the variant's push_end_fraction", positive=True)
+    horizon_scale: tuple[float, ...] = setting("the variant's horizon, in horizon_s", positive=True)
+
+    def check(self, path: str) -> None:
+        if len({len(getattr(self, f.name)) for f in dataclasses.fields(self)}) != 1:
+            raise ValueError(f"{path} must give every variant one entry in each of "
+                             f"{[f.name for f in dataclasses.fields(self)]}")
+
+    def __iter__(self):
+        return iter(zip(self.contact_height_m, self.push_end_fraction, self.horizon_scale))
+
+
+@dataclass(frozen=True)
+class ScriptedSettings:
+    """The scripted push, the physical pipeline's first start (cito_ros.planner.scripted), and its variants."""
+
+    enabled: bool = setting("try the scripted push before the discoveries")
+    approach_fraction: float = setting("fraction of the horizon the plate takes to get behind the object",
+                                       positive=True)
+    push_end_fraction: float = setting("fraction of the horizon where the push ends (then the plate holds)",
+                                       positive=True)
+    standoff_m: float = setting("gap between plate and object at the end of the approach (m)", minimum=0.0)
+    contact_height_m: float = setting("height of the plate centre above the object's centre (m)")
+    speed_fraction: float = setting("each joint's step within this fraction of its velocity limit", positive=True)
+    joint_margin_rad: float = setting("joints kept this far inside their ranges (rad)", minimum=0.0)
+    orientation_weight: float = setting("weight of the plate normal's direction against the plate position (m/rad)",
+                                        minimum=0.0)
+    posture_gain: float = setting("pull towards the start posture in the null space, per step", minimum=0.0)
+    joint_weights: tuple[float, ...] = setting("cost of moving each joint in the least squares (7)", positive=True)
+    damping: float = setting("damping of the least squares (m^2)", positive=True)
+    ik_iterations: int = setting("least-squares iterations per simulation step", minimum=1)
+    variants: ScriptVariants = setting("further scripted starts where the first misses")
+
+    def check(self, path: str) -> None:
+        for push_end in (self.push_end_fraction, *self.variants.push_end_fraction):
+            if not self.approach_fraction < push_end <= 1.0:
+                raise ValueError(f"{path}: approach_fraction < push_end_fraction <= 1 is needed, got "
+                                 f"{self.approach_fraction} and {push_end}")
+        if len(self.joint_weights) != 7:
+            raise ValueError(f"{path}.joint_weights must have one entry per arm joint (7), got {len(self.joint_weights)}")
+
+
+IPOPT_CURVATURES = ("limited_memory", "gauss_newton")
+
+
+@dataclass(frozen=True)
+class StagesSettings:
+    solver: str = setting("solver of the box-bounded stages (SCM, VSCM, CCCM with its slack eliminated, physical)",
+                          choices=("ilqr", "least_squares", "ipopt"))
+    ipopt_curvature: str = setting("IPOPT's Hessian in the physical pipeline (CCCM's discovery, any stage with "
+                                   "solver: ipopt): gauss_newton, from the linearizations, or limited_memory, the "
+                                   "paper's", choices=IPOPT_CURVATURES)
+    starts: tuple[float, ...] = setting("one discovery per entry, drawing the plate onto the object from this "
+                                        "fraction of the horizon on", minimum=0.0)
+    horizon_scales: tuple[float, ...] = setting("the starts are solved at horizon_s times each of these in "
+                                                "turn", positive=True)
+    parallel: bool = setting("solve the next start speculatively beside the current one (the same plan)")
+    scripted: ScriptedSettings = setting("the scripted push, the first start")
+    discovery: DiscoverySettings = setting("the contact model's stage")
+    physical: PhysicalStages = setting("the stages without the virtual force")
+    touch_force_N: float = setting("a virtual force above this marks the discovery's touch-down", positive=True)
+    goal_margin: float = setting("a start's stages end once its executed plan is within this fraction of the success "
+                                 "tolerances (at most 1)", positive=True)
+
+    def check(self, path: str) -> None:
+        if not self.starts or any(start >= 1.0 for start in self.starts):
+            raise ValueError(f"{path}.starts must be one or more fractions of the horizon in [0, 1), "
+                             f"got {list(self.starts)}")
+        if not self.horizon_scales:
+            raise ValueError(f"{path}.horizon_scales must list at least one scale of horizon_s")
+        if self.goal_margin > 1.0:
+            raise ValueError(f"{path}.goal_margin must be a fraction of the success tolerances in (0, 1], "
+                             f"got {self.goal_margin}")
