@@ -50,6 +50,22 @@ def test_plan_json_is_the_library_plan(settings):
         assert plan[key] == library[key], key
 
 
+def test_plan_json_tells_the_reach_zone_as_push_limits_does():
+    """steady_reach_margin_m: the steady push reach, computed from the model as push-limits computes it, minus the
+    goal's distance; positive inside it (a short push), negative beyond it (the paper's push, 1.24 m out)."""
+    limits = run("cito-bench", "push-limits", "--heights", "0.14", "--step", "0.01", "--json")
+    assert limits.returncode == 0, limits.stderr
+    report = json.loads(limits.stdout)
+    for target, inside in (("1.09", True), ("1.24", False)):
+        result = run("cito-plan", "--beta", "7", "--target", target, "0", "0", "--max-iter", "1", "--json")
+        assert result.returncode == 0, result.stderr
+        margin = json.loads(result.stdout)["steady_reach_margin_m"]
+        assert margin == pytest.approx(report["planner_steady_reach_m"] - float(target))
+        assert (margin >= 0) == inside == (report["steady_reach_m"]["face"] >= float(target))
+    beyond = run("cito-plan", "--beta", "7", "--target", "1.24", "0", "0", "--max-iter", "1")
+    assert "reach zone         strike" in beyond.stdout and "relies on a strike" in beyond.stdout
+
+
 def test_plan_json_for_a_refused_request():
     result = run("cito-plan", "--target", "1.9", "0", "0", "--json")
     assert result.returncode == 2

@@ -39,3 +39,23 @@ def test_a_scan_without_heights_or_step_is_refused():
     posed = build_problem(settings, PushRequest("vscm", settings.beta))
     with pytest.raises(ValueError, match="positive step"):
         push_limits.push_limits(posed.scene, posed.initial_state, (0.10,), step_m=0.0)
+
+
+def test_the_steady_reach_is_the_scans_bound_and_follows_the_object(tmp_path):
+    """steady_reach_m finds the face's farthest rest directly: within 2 mm of a scan's farthest at 1 mm steps near
+    the boundary (the scan accepts the plate's normal up to 1e-2 off, the direct search holds it closer), short of
+    the push reach; a smaller cube gives its own bound."""
+    settings = load_settings()
+    posed = build_problem(settings, PushRequest("vscm", settings.beta))
+    steady = push_limits.steady_reach_m(posed.scene, posed.initial_state)
+    heights = push_limits.face_heights_m(posed.scene)
+    assert heights == pytest.approx((0.06, 0.10, 0.14))
+    scan = push_limits.push_limits(posed.scene, posed.initial_state, heights[-1:], start_m=1.09, step_m=0.001)
+    farthest = push_limits.farthest(scan, "face").rest_distance_m
+    assert steady == pytest.approx(farthest, abs=2e-3) and steady < posed.scene.push_reach_m() - 0.04
+    path = tmp_path / "small_cube.yaml"
+    path.write_text("object: {half_size_m: 0.05}\n")
+    small = build_problem(settings.with_overrides({"scene": str(path)}),
+                          PushRequest("vscm", settings.beta, target_position_m=[1.1, 0.0]))
+    assert push_limits.face_heights_m(small.scene) == pytest.approx((0.06, 0.075, 0.09))
+    assert abs(push_limits.steady_reach_m(small.scene, small.initial_state) - steady) > 0.01

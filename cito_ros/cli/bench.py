@@ -54,8 +54,10 @@ def push_limits_table(result: dict) -> str:
                      f"{row['object_distance_m']:.3f} | {row['release_speed_m_s']:.3f} | {1e3 * row['slide_m']:.1f} | "
                      f"{row['rest_distance_m']:.3f} | {1e3 * row['largest_slide_m']:.1f} |")
     steady = result["steady_reach_m"]
-    lines += ["", f"steady push reach: face {steady['face']:.3f} m, rim {steady['rim']:.3f} m; "
-                  f"push reach (the plate's rim at full stretch) {result['push_reach_m']:.3f} m"]
+    lines += ["", f"steady push reach on this grid: face {steady['face']:.3f} m, rim {steady['rim']:.3f} m; "
+                  f"push reach (the plate's rim at full stretch) {result['push_reach_m']:.3f} m",
+              f"steady push reach the planner's answers use (the face, found directly): "
+              f"{result['planner_steady_reach_m']:.4f} m"]
     return "\n".join(lines)
 
 
@@ -154,8 +156,9 @@ def main(argv: list[str] | None = None) -> int:
                            help="scan the plans the planner returns for those pushes instead of the scripted pushes")
     roughness.add_argument("--json", action="store_true", help="print one JSON object")
     limits = commands.add_parser("push-limits", help="where a push that holds its height can leave the cube")
-    limits.add_argument("--heights", nargs="+", type=float, default=[0.06, 0.10, 0.14],
-                        help="plate-centre heights above the floor (m); the cube's faces span 0.025-0.175 m")
+    limits.add_argument("--heights", nargs="+", type=float, default=None,
+                        help="plate-centre heights above the floor (m); default: where the plate lies wholly on "
+                             "the object's face, its bottom, middle and top (0.06, 0.10, 0.14 m for the cube)")
     limits.add_argument("--step", type=float, default=0.005, help="spacing of the plate positions along the push (m)")
     limits.add_argument("--json", action="store_true", help="print one JSON object")
     hashes = commands.add_parser("plan-hashes", help="the paper's cases and the first targets goals, by plan hash")
@@ -197,6 +200,11 @@ def main(argv: list[str] | None = None) -> int:
                   f"{result['iterations_median']:.0f} iterations; {result['success']} successes")
             print("median share of the solve: " + ", ".join(
                 f"{name.removesuffix('_time_s')} {share:.0%}" for name, share in result["phase_share_median"].items()))
+            for name, entry in result["by_zone"].items():
+                where = "inside the steady push reach" if name == "steady" else "beyond it (strikes)"
+                print(f"{where}: {entry['cases']} solves, {entry['success']} successes" + (
+                    f", median solve {entry['solve_time_s_median']:.2f} s, "
+                    f"{entry['rollout_equivalents_median']:.0f} rollout-equivalents" if entry["cases"] else ""))
     elif args.command == "paper":
         results = paper.paper_benchmark(args.pipeline, perturb=args.perturb, workers=args.workers,
                                              address=args.address, out=args.out)
@@ -269,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result) if args.json else roughness_table(result))
     elif args.command == "push-limits":
         try:
-            result = benchmarks.push_limits_benchmark(tuple(args.heights), args.step)
+            result = benchmarks.push_limits_benchmark(None if args.heights is None else tuple(args.heights), args.step)
         except ValueError as error:  # a step that is not positive
             parser.error(str(error))
         print(json.dumps(result) if args.json else push_limits_table(result))

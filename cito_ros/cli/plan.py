@@ -15,7 +15,7 @@ import sys
 from cito_ros.cli.progress import advance, progress_bar
 from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import IterationLog, PlanResult
+from cito_ros.planner.results import IterationLog, PlanResult, zone, zone_note
 from cito_ros.settings import load_settings
 
 INVALID_REQUEST = "invalid_request"
@@ -38,6 +38,9 @@ def print_summary(result: PlanResult) -> None:
           f"(contact model, with the virtual force)")
     print(f"joint speeds       {m.max_joint_speed_ratio:7.2f} of the limits at most")
     print(f"physical inacc.    {m.physical_inaccuracy_Ns:7.4f} N s (integral of the planned virtual force)")
+    print(f"reach zone         {zone(m.steady_reach_margin_m)}: the goal {100 * abs(m.steady_reach_margin_m):.1f} cm "
+          f"{'inside' if m.steady_reach_margin_m >= 0 else 'beyond'} the steady push reach"
+          + (f"; {zone_note(m.steady_reach_margin_m)}" if zone(m.steady_reach_margin_m) == "strike" else ""))
     if motion.warnings:
         print(f"MuJoCo warnings    {motion.warnings}")
 

@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from cito_ros.planner import tracking
+from cito_ros.planner import push_limits, tracking
 from cito_ros.planner.builder import PlanningProblem, PushRequest, build_problem
 from cito_ros.planner.physical import solve_physical
 from cito_ros.planner.results import IterationLog, Metrics, PlanResult, Status
@@ -103,6 +103,8 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         max_joint_speed_ratio=speed_ratio,
         joint_range_excess_rad=range_excess,
         final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(trajectory.final_state)[:3])),
+        steady_reach_margin_m=push_limits.steady_reach_m(discovery.scene, discovery.initial_state)
+        - float(np.hypot(*task.target_position_m[:2])),
         solve_time_s=outcome.solve_time_s,
         setup_time_s=outcome.setup_s,
         rollout_time_s=sum(record.rollout_s for record in outcome.stages),

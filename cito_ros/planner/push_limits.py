@@ -11,9 +11,15 @@ equalities: 35 bases, 2^3 signs each). The object released at that speed comes t
 slide further on. The largest rest distance over the positions is an upper bound on where a push
 whose plate holds its height can leave the object: the joint torques, the object tipping under a
 hard push, and the time to speed up only lower it. Beyond it the object must be struck.
+
+`steady_reach_m` is that bound as every answer uses it (the reach zones): at each height where the plate
+lies wholly on the object's face, the farthest plate position with its face along the push is found
+directly (a penalty least squares that pulls the plate outwards), and the object released there at the
+fastest speed the joint limits allow comes to rest one MuJoCo slide further on.
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass
 
@@ -21,10 +27,14 @@ import mujoco
 import numpy as np
 from mujoco import minimize
 
-from cito_ros.model.scene import Scene
+from cito_ros.model.scene import TABLE_TOP_Z_M, Scene
 from cito_ros.model.simulator import FULL_PHYSICS
+from cito_ros.settings import SceneConfig
 
 CONTACTS = ("face", "rim")  # the plate's face along the push; any orientation, the rim leading
+MARGIN_RAD = 0.05            # the inverse kinematics keeps every joint this far inside its range
+POSITION_TOLERANCE_M = 1e-3  # an inverse-kinematics solution counts when the plate is this close to its goal
+NORMAL_TOLERANCE = 1e-2      # and (for the face) its normal this close to the push direction
 
 
 @dataclass(frozen=True)
@@ -82,8 +92,28 @@ def slide_m(scene: Scene, speed_m_s: float, initial_state: np.ndarray, seconds: 
     return float(data.qpos[scene.object_qpos_adr] - start)
 
 
+def face_heights_m(scene: Scene) -> tuple[float, ...]:
+    """Plate-centre heights where the plate lies wholly on the object's face: its bottom and top edges and
+    the face's middle (the middle alone for a face lower than the plate)."""
+    half, radius = float(scene.object_half_size[2]), scene.plate_radius_m
+    middle = TABLE_TOP_Z_M + half
+    if half <= radius:
+        return (middle,)
+    return (middle - half + radius, middle, middle + half - radius)
+
+
+def _joint_bounds(scene: Scene, margin_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    return scene.joint_range[:, 0] + margin_rad, scene.joint_range[:, 1] - margin_rad
+
+
+def _stretched_starts(low: np.ndarray, high: np.ndarray) -> list[np.ndarray]:
+    """The arm stretched forward with the elbow and wrist bent either way: inverse-kinematics starts."""
+    return [np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
+            for j3 in (0.0, 0.5, -0.5) for j5 in (0.5, -0.5, 1.2)]
+
+
 def push_limits(scene: Scene, initial_state: np.ndarray, plate_heights_m: tuple[float, ...],
-                start_m: float = 0.95, step_m: float = 0.005, margin_rad: float = 0.05) -> list[PushLimit]:
+                start_m: float = 0.95, step_m: float = 0.005, margin_rad: float = MARGIN_RAD) -> list[PushLimit]:
     """Every kind of contact at every plate height, along the world +x push line through the arm base,
     the object's slides simulated from initial_state (the object at rest, the arm clear of it),
     from start_m outwards in step_m until the plate cannot reach (inverse kinematics by
@@ -92,12 +122,11 @@ def push_limits(scene: Scene, initial_state: np.ndarray, plate_heights_m: tuple[
     if step_m <= 0.0 or not plate_heights_m:
         raise ValueError(f"a scan needs a positive step and at least one height, got {step_m} and {plate_heights_m}")
     model, data = scene.model, mujoco.MjData(scene.model)
-    low, high = scene.joint_range[:, 0] + margin_rad, scene.joint_range[:, 1] - margin_rad
+    low, high = _joint_bounds(scene, margin_rad)
     site, qadr, dofs = scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
     along = np.array([1.0, 0.0, 0.0])
     half = float(scene.object_half_size[0])
-    stretched = [np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
-                 for j3 in (0.0, 0.5, -0.5) for j5 in (0.5, -0.5, 1.2)]
+    stretched = _stretched_starts(low, high)
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
     slides: dict[float, float] = {}
     limits = []
@@ -125,8 +154,8 @@ def push_limits(scene: Scene, initial_state: np.ndarray, plate_heights_m: tuple[
                     data.qpos[qadr] = q
                     mujoco.mj_kinematics(model, data)
                     mujoco.mj_comPos(model, data)
-                    if np.linalg.norm(data.site_xpos[site] - goal) > 1e-3 or \
-                            (face and np.linalg.norm(data.site_xmat[site][2::3] - along) > 1e-2):
+                    if np.linalg.norm(data.site_xpos[site] - goal) > POSITION_TOLERANCE_M or \
+                            (face and np.linalg.norm(data.site_xmat[site][2::3] - along) > NORMAL_TOLERANCE):
                         continue
                     mujoco.mj_jacSite(model, data, jacp, jacr, site)
                     speeds.append(fastest_push_m_s(jacp[:, dofs], jacr[:, dofs], along, scene.velocity_limit, face))
@@ -149,3 +178,55 @@ def farthest(limits: list[PushLimit], contact: str) -> PushLimit:
     if not rows:
         raise ValueError(f"no reachable position for the {contact} contact")
     return max(rows, key=lambda row: row.rest_distance_m)
+
+
+# (scene without the object's pose) -> steady reach: the bound depends on the arm, the object's size and the
+# scene's contact parameters, not on where the object stands (its slide there is under a millimetre)
+_STEADY_REACH: dict[SceneConfig, float] = {}
+
+
+def steady_reach_m(scene: Scene, initial_state: np.ndarray, margin_rad: float = MARGIN_RAD) -> float:
+    """The farthest from the arm base (horizontally) a push whose plate holds its height and its face
+    along the push can leave the object's centre: the largest, over face_heights_m, of the farthest such
+    plate position plus the plate's half thickness and the object's half size, plus the slide of the
+    object released there at fastest_push_m_s (simulated from initial_state, the object at rest and the
+    arm clear of it). Cached per scene description, the object's pose aside."""
+    config = scene.config
+    key = dataclasses.replace(config, object=dataclasses.replace(config.object, position_m=(0.0, 0.0), yaw_rad=0.0))
+    if key not in _STEADY_REACH:
+        model, data = scene.model, mujoco.MjData(scene.model)
+        low, high = _joint_bounds(scene, margin_rad)
+        site, qadr, dofs = scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
+        along = np.array([1.0, 0.0, 0.0])
+        jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        reach = 0.0
+        for height in face_heights_m(scene):
+            def residual(x: np.ndarray) -> np.ndarray:
+                # outwards along +x as far as the plate can hold its line, height and normal (weighted 100)
+                out = np.empty((6, x.shape[1]))
+                for column, q in enumerate(x.T):
+                    data.qpos[qadr] = q
+                    mujoco.mj_kinematics(model, data)
+                    plate = data.site_xpos[site]
+                    out[:, column] = np.r_[2.0 - plate[0], 100.0 * plate[1], 100.0 * (plate[2] - height),
+                                           10.0 * (data.site_xmat[site][2::3] - along)]
+                return out
+
+            for start in _stretched_starts(low, high):
+                q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
+                data.qpos[qadr] = q
+                mujoco.mj_kinematics(model, data)
+                mujoco.mj_comPos(model, data)
+                plate = data.site_xpos[site]
+                if abs(plate[1]) > POSITION_TOLERANCE_M or abs(plate[2] - height) > POSITION_TOLERANCE_M or \
+                        np.linalg.norm(data.site_xmat[site][2::3] - along) > NORMAL_TOLERANCE:
+                    continue
+                mujoco.mj_jacSite(model, data, jacp, jacr, site)
+                speed = fastest_push_m_s(jacp[:, dofs], jacr[:, dofs], along, scene.velocity_limit, True)
+                rest = float(plate[0]) + scene.plate_half_thickness_m + float(scene.object_half_size[0]) + \
+                    slide_m(scene, speed, initial_state)
+                reach = max(reach, rest)
+        if reach == 0.0:
+            raise ValueError(f"scene {config.name}: the plate cannot hold the object's face at any height")
+        _STEADY_REACH[key] = reach
+    return _STEADY_REACH[key]

@@ -95,6 +95,10 @@ class Metrics:
     max_joint_speed_ratio: float = metric("executed: largest |qdot_j| / velocity limit_j over the horizon")
     joint_range_excess_rad: float = metric("executed: farthest any joint goes beyond its position range (0 inside)")
     final_object_speed_m_s: float = metric("executed: the object's speed at the end of the horizon, before the hold")
+    steady_reach_margin_m: float = metric("the steady push reach (cito_ros.planner.push_limits.steady_reach_m) "
+                                          "minus the goal's distance from the arm base: inside it (>= 0) a steady "
+                                          "push gets the object there; beyond it (< 0) only a strike at the joint "
+                                          "speed limits does, whose outcome is sensitive: best effort")
     solve_time_s: float = metric("wall clock of the whole solve")
     setup_time_s: float = metric("posing the problems (scene, simulator, touch-down profile), summed over starts")
     rollout_time_s: float = metric("simulating the solvers' decisions and trials, summed over stages")
@@ -117,6 +121,21 @@ class Metrics:
 
 
 METRIC_NAMES = tuple(f.name for f in dataclasses.fields(Metrics))
+ZONES = ("steady", "strike")  # goals inside the steady push reach, and beyond it (reached only by a strike)
+
+
+def zone(steady_reach_margin_m: float) -> str:
+    """The reach zone of a goal with this steady_reach_margin_m."""
+    return "steady" if steady_reach_margin_m >= 0.0 else "strike"
+
+
+def zone_note(steady_reach_margin_m: float) -> str:
+    """What an answer says of its goal's zone: nothing inside the steady push reach; beyond it, that the plan
+    is a strike and best effort."""
+    if zone(steady_reach_margin_m) == "steady":
+        return ""
+    return (f"the goal is {-100 * steady_reach_margin_m:.1f} cm beyond the steady push reach: the plan relies on "
+            f"a strike at the joint speed limits, and its outcome is sensitive to small changes (best effort)")
 PHASE_METRICS = ("setup_time_s", "rollout_time_s", "linearization_time_s", "solver_time_s", "evaluation_time_s")
 
 

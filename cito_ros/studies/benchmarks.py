@@ -18,7 +18,7 @@ from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.model.simulator import Simulator
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import PHASE_METRICS
+from cito_ros.planner.results import PHASE_METRICS, ZONES, zone
 from cito_ros.settings import load_settings
 from cito_ros.studies.paper import PAPER_CASES, PAPER_MODELS
 
@@ -145,7 +145,8 @@ def solve_cost_benchmark(goals: int = 20, seed: int = 0, repeats: int = 20) -> d
         m = result.metrics
         cases.append({"case": name, "rollout_ms": rollout_ms, "solve_time_s": m.solve_time_s,
                       "rollout_equivalents": 1e3 * m.solve_time_s / rollout_ms, "iterations": m.iterations,
-                      "success": m.success, **{phase: getattr(m, phase) for phase in PHASE_METRICS}})
+                      "success": m.success, "zone": zone(m.steady_reach_margin_m),
+                      **{phase: getattr(m, phase) for phase in PHASE_METRICS}})
 
     def median(rows: list[dict], key: str) -> float:
         return float(statistics.median(row[key] for row in rows))
@@ -160,6 +161,11 @@ def solve_cost_benchmark(goals: int = 20, seed: int = 0, repeats: int = 20) -> d
         "rollout_equivalents_median": median(cases, "rollout_equivalents"),
         "iterations_median": median(cases, "iterations"),
         "success": sum(row["success"] for row in cases),
+        # per reach zone (cito_ros.planner.results.zone): the speed aims hold inside the steady push reach
+        "by_zone": {name: {"cases": len(rows), "success": sum(row["success"] for row in rows),
+                           "solve_time_s_median": median(rows, "solve_time_s") if rows else None,
+                           "rollout_equivalents_median": median(rows, "rollout_equivalents") if rows else None}
+                    for name in ZONES for rows in [[row for row in cases if row["zone"] == name]]},
         "phase_share_median": {phase: float(statistics.median(row[phase] / row["solve_time_s"] for row in cases))
                                for phase in PHASE_METRICS},
         "per_case": cases,
@@ -239,7 +245,7 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
             "torque_step_Nm": 2 * torque_amplitude_Nm / (points - 1), "scenes": results}
 
 
-def push_limits_benchmark(plate_heights_m: tuple[float, ...] = (0.06, 0.10, 0.14), step_m: float = 0.005) -> dict:
+def push_limits_benchmark(plate_heights_m: tuple[float, ...] | None = None, step_m: float = 0.005) -> dict:
     """Where a push whose plate holds its height can leave the object, against the push reach
     (cito_ros.planner.push_limits): per kind of contact and plate height, the farthest rest distance, where the
     plate is then, its fastest speed along the push there and the slide it buys."""
@@ -247,6 +253,8 @@ def push_limits_benchmark(plate_heights_m: tuple[float, ...] = (0.06, 0.10, 0.14
 
     settings = load_settings()
     posed = build_problem(settings, PushRequest("vscm", settings.beta))
+    if plate_heights_m is None:
+        plate_heights_m = push_limits.face_heights_m(posed.scene)
     limits = push_limits.push_limits(posed.scene, posed.initial_state, plate_heights_m, step_m=step_m)
     farthest = []
     for contact in push_limits.CONTACTS:
@@ -260,6 +268,8 @@ def push_limits_benchmark(plate_heights_m: tuple[float, ...] = (0.06, 0.10, 0.14
                                  "rest_distance_m": best.rest_distance_m,
                                  "largest_slide_m": max(row.slide_m for row in rows)})
     return {"push_reach_m": posed.scene.push_reach_m(), "step_m": step_m,
+            # the bound every answer's reach zone is judged against, found directly rather than on the grid
+            "planner_steady_reach_m": push_limits.steady_reach_m(posed.scene, posed.initial_state),
             "steady_reach_m": {contact: push_limits.farthest(limits, contact).rest_distance_m
                                for contact in push_limits.CONTACTS},
             "farthest": farthest,

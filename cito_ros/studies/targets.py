@@ -22,7 +22,7 @@ from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, build_problem, make_task
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import PlanResult, phase_table
+from cito_ros.planner.results import ZONES, PlanResult, phase_table, zone
 from cito_ros.settings import Settings, load_settings
 
 MODELS = ("cccm", "scm", "vscm")
@@ -30,11 +30,6 @@ BETA_RANGE = (4.0, 7.0)
 PUSH_RANGE_M = (0.05, 0.35)
 DIRECTION_RANGE_RAD = math.radians(35.0)
 YAW_RANGE_RAD = 0.5
-# the band at the edge of the push reach (cito_ros.model.scene.Scene.push_reach_m) that the report sets apart:
-# that reach counts the plate's rim at the top of the cube's face at full stretch, and a push that keeps
-# the plate on the face ends short of it, so goals in the band need the cube to slide or be lifted the
-# rest of the way (README: the random pushes)
-NEAR_REACH_BAND_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -184,31 +179,38 @@ def goal_distance_m(record: dict[str, Any]) -> float:
     return float(np.hypot(*record["target_position_m"][:2]))
 
 
-def by_reach(records: list[dict[str, Any]], reach_m: float, band_m: float = NEAR_REACH_BAND_M) -> dict[str, Any]:
-    """Per model, the goals more than band_m inside the push reach and those within band_m of it: their
-    successes, solve times, and the perturbed pairs that kept the verdict and moved at most 1 cm."""
-    def band(record) -> str:
-        return "near" if goal_distance_m(record) > reach_m - band_m else "inside"
+def steady_reach_m(record: dict[str, Any]) -> float:
+    """The steady push reach a record's goal was judged against (its distance plus its margin)."""
+    return goal_distance_m(record) + record["steady_reach_margin_m"]
 
+
+def by_zone(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per model and reach zone (cito_ros.planner.results.zone: inside the steady push reach computed for each
+    request, or beyond it): successes, executed errors, solve times, and the perturbed pairs that kept the
+    verdict and moved at most 1 cm."""
     plain = [r for r in records if r["perturbation"] == "none"]
     pairs = list(perturbed_pairs(records))
     out: dict[str, Any] = {}
     for model in dict.fromkeys(r["contact_model"] for r in plain):
-        for name in ("inside", "near"):
-            rows = [r for r in plain if r["contact_model"] == model and band(r) == name]
-            chosen = [(p, b) for p, b in pairs if p["contact_model"] == model and band(p) == name]
-            times = [r["solve_time_s"] for r in rows]
+        for name in ZONES:
+            rows = [r for r in plain if r["contact_model"] == model and zone(r["steady_reach_margin_m"]) == name]
+            chosen = [(p, b) for p, b in pairs if p["contact_model"] == model
+                      and zone(b["steady_reach_margin_m"]) == name]
+            times, errors = [r["solve_time_s"] for r in rows], [r["position_error_m"] for r in rows]
             out.setdefault(model, {})[name] = {
                 "goals": len(rows), "successes": sum(r["success"] for r in rows),
+                "executed_position_error_m": {"median": statistics.median(errors) if errors else None,
+                                              "p90": _percentile(errors, 90)},
                 "solve_time_s": {"median": statistics.median(times) if times else None, "p90": _percentile(times, 90)},
                 "perturbed_pairs": len(chosen), "pairs_stable": sum(stable(p, b) for p, b in chosen)}
-    return {"reach_m": reach_m, "band_m": band_m, "models": out}
+    reaches = sorted({round(steady_reach_m(r), 4) for r in plain})
+    return {"steady_reach_m": reaches, "models": out}
 
 
 def report(records: list[dict[str, Any]], refused: list[str], reach_m: float | None = None) -> dict[str, Any]:
     """Per model: success rates, error and time statistics of the unperturbed plans, and the stability
-    of the perturbed ones; with reach_m, the same split by the goal's distance to that reach (by_reach).
-    A failed solve (an exception, a lost worker) counts as no success."""
+    of the perturbed ones; the same split by reach zone (by_zone); reach_m, the push reach, is drawn in the
+    plot. A failed solve (an exception, a lost worker) counts as no success."""
     failed = [r for r in records if r.get("failed")]
     records = [r for r in records if not r.get("failed")]
     per_model = {}
@@ -246,7 +248,7 @@ def report(records: list[dict[str, Any]], refused: list[str], reach_m: float | N
         }
     phases = phase_table({model.upper(): [r for r in plain if r["contact_model"] == model] for model in per_model})
     return {"models": per_model, "stability": stability(records), "phases": phases,
-            "by_reach": None if reach_m is None else by_reach(records, reach_m), "refused_draws": len(refused),
+            "by_zone": by_zone(records), "push_reach_m": reach_m, "refused_draws": len(refused),
             "refused_reasons": sorted(set(refused))[:5], "failures": [(r["key"], r["error"]) for r in failed]}
 
 
@@ -272,8 +274,7 @@ def markdown(summary: dict[str, Any]) -> str:
                      f"{t['median']:.2f} / {t['p90']:.2f} / {t['max']:.2f} | {it['median']:.0f} / {it['p90']:.0f} |")
     if summary["stability"]:
         lines += ["", stability_table(summary["stability"])]
-    if summary.get("by_reach"):
-        lines += ["", reach_table(summary["by_reach"])]
+    lines += ["", zone_table(summary["by_zone"])]
     lines += ["", "Where the solve time went (cito_ros.planner.results.PHASE_METRICS):", "", summary["phases"]]
     for key, error in summary["failures"]:
         lines.append(f"- {key}: failed: {error}")
@@ -293,23 +294,23 @@ def stability_table(by_model: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def reach_table(split: dict[str, Any]) -> str:
-    """Markdown of `by_reach`."""
-    reach, band = split["reach_m"], split["band_m"]
-    lines = [f"By the goal's distance from the arm base, against the push reach of {reach:.3f} m:", "",
-             f"| model | goals ≤ {reach - band:.3f} m: success | solve median / p90 (s) | perturbed pairs stable | "
-             f"goals {reach - band:.3f}–{reach:.3f} m: success | solve median / p90 (s) | perturbed pairs stable |",
-             "|---|---|---|---|---|---|---|"]
-
-    def cells(entry) -> str:
-        t = entry["solve_time_s"]
-        times = "-" if t["median"] is None else f"{t['median']:.2f} / {t['p90']:.2f}"
-        return (f"{entry['successes']}/{entry['goals']} | {times} | "
-                f"{entry['pairs_stable']}/{entry['perturbed_pairs']}")
-
-    for model, entries in split["models"].items():
-        lines.append(f"| {model.upper()} | {cells(entries['inside'])} | {cells(entries['near'])} |")
-    return "\n".join(lines)
+def zone_table(split: dict[str, Any]) -> str:
+    """Markdown of `by_zone`: one table per zone."""
+    reaches = ", ".join(f"{r:.3f}" for r in split["steady_reach_m"])
+    lines = []
+    for name, title in (("steady", f"Goals inside the steady push reach ({reaches} m from the arm base)"),
+                        ("strike", "Goals beyond it, reached only by a strike (best effort)")):
+        lines += [f"{title}:", "", "| model | success | executed error median / p90 (cm) | solve median / p90 (s) "
+                  "| perturbed pairs stable |", "|---|---|---|---|---|"]
+        for model, entries in split["models"].items():
+            entry = entries[name]
+            t, e = entry["solve_time_s"], entry["executed_position_error_m"]
+            times = "-" if t["median"] is None else f"{t['median']:.2f} / {t['p90']:.2f}"
+            errors = "-" if e["median"] is None else f"{100 * e['median']:.2f} / {100 * e['p90']:.2f}"
+            lines.append(f"| {model.upper()} | {entry['successes']}/{entry['goals']} | {errors} | {times} | "
+                         f"{entry['pairs_stable']}/{entry['perturbed_pairs']} |")
+        lines.append("")
+    return "\n".join(lines).rstrip()
 
 
 def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: Path) -> list[Path]:
@@ -324,14 +325,14 @@ def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: P
         writer.writerows(records)
     paths[1].write_text(markdown(summary))
     paths[2].write_text(json.dumps({"summary": summary, "runs": records}, indent=1))
-    plot(records, paths[3], summary.get("by_reach"))
+    plot(records, paths[3], summary.get("push_reach_m"))
     return paths
 
 
-def plot(records: list[dict[str, Any]], path: Path, split: dict[str, Any] | None = None) -> Path:
+def plot(records: list[dict[str, Any]], path: Path, push_reach_m: float | None = None) -> Path:
     """Executed error against solve time per model, successes filled, success rate in the legend, the
-    successes that an offset of the tracked reference takes beyond 2 cm crossed; and, with a by_reach
-    split, against the goal's distance from the arm base, the push reach and its band marked."""
+    successes that an offset of the tracked reference takes beyond 2 cm crossed; and against the goal's
+    distance from the arm base, the steady push reach and the push reach marked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -339,9 +340,8 @@ def plot(records: list[dict[str, Any]], path: Path, split: dict[str, Any] | None
 
     colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
     records = [r for r in records if not r.get("failed") and r["perturbation"] == "none"]
-    panels = [("solve time (s)", lambda r: r["solve_time_s"], "log")]
-    if split is not None:
-        panels.append(("goal's distance from the arm base (m)", goal_distance_m, "linear"))
+    panels = [("solve time (s)", lambda r: r["solve_time_s"], "log"),
+              ("goal's distance from the arm base (m)", goal_distance_m, "linear")]
     figure, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 5), squeeze=False)
     for axis, (label, x_of, xscale) in zip(axes[0], panels):
         for model in dict.fromkeys(r["contact_model"] for r in records):
@@ -365,12 +365,12 @@ def plot(records: list[dict[str, Any]], path: Path, split: dict[str, Any] | None
         axis.legend(fontsize=8)
         axis.grid(True, which="both", alpha=0.3)
     axes[0][0].set_title("random pushes: error executed on the robot against solve time (filled: success)")
-    if split is not None:
-        reach, band = split["reach_m"], split["band_m"]
-        axes[0][1].axvline(reach, color="black", linewidth=1.0)
-        axes[0][1].axvspan(reach - band, reach, color="gray", alpha=0.15)
-        axes[0][1].set_title(f"against the goal's distance: push reach {reach:.3f} m, its last "
-                             f"{100 * band:.0f} cm shaded")
+    steady = min((steady_reach_m(r) for r in records), default=None)
+    if steady is not None:
+        axes[0][1].axvspan(steady, push_reach_m or steady, color="gray", alpha=0.15)
+        axes[0][1].axvline(steady, color="black", linewidth=1.0)
+        axes[0][1].set_title(f"against the goal's distance: beyond the steady push reach ({steady:.3f} m, shaded"
+                             + (f" to the push reach {push_reach_m:.3f} m" if push_reach_m else "") + "): strikes")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
