@@ -19,7 +19,9 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
 from test_node import Client, read_with_mcap, read_with_rosbags, request, start_node
 
-Q0_BETA_5_GOAL = dict(start=None, model="vscm", x=1.24)  # the main job: the long beta = 5 VSCM solve
+STEADY_GOAL = dict(start=None, model="vscm", x=1.14)  # the main job's: 15 cm from q0(beta = 5), inside the steady reach
+# a turn in place that no push achieves: every start runs, for tens of seconds
+LONG_GOAL = dict(start=None, model="vscm", x=0.99, q=(0.0, 0.0, math.sin(0.6), math.cos(0.6)))
 
 
 class ActionUser(Client):
@@ -80,7 +82,7 @@ def user(tmp_path_factory):
 def test_a_goal_gets_feedback_and_a_successful_result(user):
     client, _ = user
     client.feedback.clear()
-    handle = client.send(**Q0_BETA_5_GOAL)  # the scripted start iterates, then discoveries
+    handle = client.send(**STEADY_GOAL)  # the scripted start's physical stages iterate
     assert handle.accepted
     answer = client.result(handle)
     assert answer.status == GoalStatus.STATUS_SUCCEEDED
@@ -90,18 +92,20 @@ def test_a_goal_gets_feedback_and_a_successful_result(user):
     client.spin_for(0.5)
     feedback = client.feedback
     assert 3 <= len(feedback) <= result.metrics.iterations + len({f.stage for f in feedback})  # one per iteration
-    assert {f.stage.split(": ")[1].split()[0] for f in feedback} == {"discovery", "physical"}
+    assert {f.stage for f in feedback} <= {stage.name for stage in result.stages}  # each iteration's stage
     assert all(f.elapsed_s > 0 and math.isfinite(f.cost) for f in feedback)
     # the best errors so far only shrink; the executed one is there once a stage runs without the virtual force
     executed = [f.best_executed_position_error_m for f in feedback if math.isfinite(f.best_executed_position_error_m)]
     assert executed and executed == sorted(executed, reverse=True) and executed[-1] < 0.02
-    assert math.isfinite(feedback[-1].best_planned_position_error_m)
+    # the planned one (with the virtual force) only once a discovery has run; NaN before
+    discovered = any("discovery" in f.stage for f in feedback)
+    assert math.isfinite(feedback[-1].best_planned_position_error_m) == discovered
 
 
 def test_a_busy_node_rejects_a_second_goal_and_a_cancelled_goal_returns_its_best_plan(user):
     client, process = user
     client.feedback.clear()
-    running = client.send(**Q0_BETA_5_GOAL)
+    running = client.send(**LONG_GOAL)
     assert running.accepted
     client.wait_for_feedback(3)
     second = client.send(model="scm")
@@ -169,7 +173,7 @@ def test_a_parameter_change_applies_to_the_next_plan_and_bad_values_are_refused(
         (_, planned), = read_with_mcap(Path(result.bag_path))["/cito/plan_request"]
         assert planned.contact_model == "cccm"
         assert client.set_parameter("solver.time_limit_s", 0.5)[0]
-        handle = client.send(**{**Q0_BETA_5_GOAL, "model": "scm"})
+        handle = client.send(**{**LONG_GOAL, "model": "scm"})
         result = client.result(handle).result
         assert result.metrics.status == "time_limit" and result.metrics.solve_time_s < 5.0
     finally:

@@ -188,7 +188,9 @@ def test_bench_collisions(tmp_path):
 
 
 def test_the_main_job_cancelled_returns_the_best_plan_so_far(tmp_path):
-    result = run("cito-demo", "--cancel-after", "3", "--bag-directory", str(tmp_path), timeout=300)
+    # a turn in place that no push achieves: the search runs every start, for tens of seconds
+    result = run("cito-demo", "--target", "0.99", "0", "1.2", "--cancel-after", "3", "--bag-directory", str(tmp_path),
+                 timeout=300)
     assert result.returncode == 0, result.stderr
     assert "cancelling the goal after 3 s" in result.stderr
     assert "status 5 (no success) the solve was cancelled" in result.stdout

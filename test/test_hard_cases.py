@@ -22,16 +22,23 @@ EXPECTED = {"far_0.40m", "far_0.50m", "lateral_+0.15m", "lateral_-0.15m", "yaw_3
             "target_reached", "target_off_table"}
 
 
-def check_record(record, result):
+REFUSED = {"target_off_table"}  # the cases that cannot be posed; every other one is planned
+
+
+def check_record(name, record, result):
+    """A planned case has a status, finite figures and plan, and MuJoCo's warnings as a status; a refused one
+    (and only those expected) says why."""
     assert record["status"] in STATUSES
-    assert record["finite"]
-    if result is not None:
-        assert result.finite()
-        for key in ("position_error_m", "planned_position_error_m", "tracked_position_error_m", "solve_time_s",
-                    "physical_inaccuracy_Ns"):
-            assert math.isfinite(record[key]), key
-        if record["warnings"]:
-            assert record["status"] == Status.NUMERICAL_ERROR.value
+    assert (result is None) == (name in REFUSED), record.get("message")
+    if result is None:
+        assert record["status"] == "invalid_request" and record["message"] and not record["success"]
+        return
+    assert record["finite"] and result.finite()
+    for key in ("position_error_m", "planned_position_error_m", "tracked_position_error_m", "solve_time_s",
+                "physical_inaccuracy_Ns", "steady_reach_margin_m"):
+        assert math.isfinite(record[key]), key
+    if record["warnings"]:
+        assert record["status"] == Status.NUMERICAL_ERROR.value
 
 
 def test_the_configured_cases_are_the_issue_list():
@@ -47,7 +54,7 @@ def test_far_starts_are_0_4_and_0_5_m_away(scenes):
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_every_case_ends_with_a_status_and_finite_numbers(name):
     record, result = run_case(CASES[name], "scm", TWO_STARTS)
-    check_record(record, result)
+    check_record(name, record, result)
 
 
 def test_target_off_the_table_is_a_clear_failure():
@@ -92,4 +99,4 @@ def test_mujoco_warnings_are_reported_as_a_status(tmp_path, settings):
 def test_every_case_with_the_other_models(model):
     for name in sorted(EXPECTED):
         record, result = run_case(CASES[name], model, TWO_STARTS)
-        check_record(record, result)
+        check_record(name, record, result)

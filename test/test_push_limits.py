@@ -1,5 +1,5 @@
 """Where a push that holds its height can leave the cube (cito_ros.planner.push_limits): the bound behind the
-near-reach lottery (README: where a steady push ends)."""
+near-reach lottery (docs/planner.md: Reach zones)."""
 import numpy as np
 import pytest
 

@@ -1,9 +1,10 @@
 """cito-demo: the main job. Starts the planner node, sends a /cito/plan_push action goal from a
 client in this (separate) process for the default scene (VSCM, the configured beta, the object
-pushed task.push_distance_m along +x), shows the feedback as a progress bar, prints a summary,
-leaves the bag, stops the node and exits 0 when a plan came back.
+pushed DEMO_PUSH_M along +x, inside the steady push reach; or --target), shows the feedback as a
+progress bar, prints a summary, leaves the bag, stops the node and exits 0 when a plan came back.
 
-    cito-demo [--contact-model {cccm,scm,vscm}] [--bag-directory DIR] [--timeout S] [--cancel-after S]
+    cito-demo [--contact-model {cccm,scm,vscm}] [--target X Y YAW] [--bag-directory DIR] [--timeout S]
+              [--cancel-after S]
 """
 from __future__ import annotations
 
@@ -20,12 +21,17 @@ from pathlib import Path
 from cito_ros.cli.progress import advance, progress_bar
 from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.model.scene import TABLE_TOP_Z_M
+from cito_ros.planner.results import zone
 from cito_ros.settings import load_settings
+
+DEMO_PUSH_M = 0.15  # from the default scene's cube, 5 cm inside the steady push reach
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cito-demo", description=__doc__.splitlines()[0])
     parser.add_argument("--contact-model", choices=sorted(CONTACT_MODELS), default="vscm")
+    parser.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "YAW"), default=None,
+                        help=f"the object's goal: x, y (m, world) and yaw (rad); default {DEMO_PUSH_M} m along +x")
     parser.add_argument("--bag-directory", type=Path, default=Path("bags"))
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the plan")
     parser.add_argument("--cancel-after", type=float, default=None, metavar="S",
@@ -55,10 +61,11 @@ def _call(args) -> int:
 
     settings = load_settings()
     x, y = settings.scene.object.position_m
+    target_x, target_y, yaw = (x + DEMO_PUSH_M, y, 0.0) if args.target is None else args.target
     goal = PlanPush.Goal()
-    goal.target_pose.position.x = x + settings.task.push_distance_m
-    goal.target_pose.position.y = y
+    goal.target_pose.position.x, goal.target_pose.position.y = target_x, target_y
     goal.target_pose.position.z = TABLE_TOP_Z_M + settings.scene.object.half_size_m
+    goal.target_pose.orientation.z, goal.target_pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
     goal.contact_model = args.contact_model
 
     rclpy.init()
@@ -103,6 +110,8 @@ def _call(args) -> int:
               f"{m.tracked_orientation_error_rad:.4f} rad (PD joint trajectory controller)")
         print(f"  planned error      {100 * m.planned_position_error_m:8.2f} cm (contact model, virtual force on)")
         print(f"  joint speeds       {m.max_joint_speed_ratio:8.2f} of the limits at most")
+        print(f"  reach zone         {zone(m.steady_reach_margin_m):>8} "
+              f"({100 * m.steady_reach_margin_m:+.1f} cm from the steady push reach)")
         print(f"  solve time         {m.solve_time_s:8.2f} s ({m.iterations} iterations; "
               f"round trip {time.monotonic() - started:.2f} s)")
         print(f"  trajectory         {len(r.trajectory.points)} points, {len(r.contact_forces)} contact samples (with the hold after it)")

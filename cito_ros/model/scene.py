@@ -285,6 +285,12 @@ class Scene:
         """The object's velocity (linear world, angular local) in a state or (..., nstate) states (a view)."""
         return state[..., self._state_object_dof:self._state_object_dof + 6]
 
+    def object_speed_m_s(self, state: np.ndarray) -> float:
+        """The fastest any point of the object can be moving in a state: its centre's speed plus its angular
+        speed times its half diagonal (m/s)."""
+        velocity = self.object_qvel(state)
+        return float(np.linalg.norm(velocity[:3]) + np.linalg.norm(velocity[3:]) * np.linalg.norm(self.object_half_size))
+
     def joint_range_excess(self, q: np.ndarray) -> float:
         """How far (rad) any of (..., 7) arm joint positions goes beyond its range; 0 inside."""
         low, high = self.joint_range.T

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cito_ros.planner import tracking
+from cito_ros.planner import results, tracking
 from cito_ros.planner.problem import PushProblem
 from cito_ros.settings import Settings, TrackingSettings
 
@@ -29,17 +29,16 @@ class Executed:
 
     position_error_m: float
     orientation_error_rad: float
-    max_joint_speed_ratio: float
-    joint_range_excess_rad: float
+    max_joint_speed_ratio: float               # over the horizon and the hold
+    joint_range_excess_rad: float              # likewise
+    rest_object_speed_m_s: float               # after the hold
     tracked_position_error_m: float = math.nan  # by a PD joint trajectory controller; nan: not tracked
     offset_tracked_error_m: float = math.nan    # the worst with the reference off (tracking.reference_offsets)
 
     def rank(self, settings: Settings) -> tuple:
         task = settings.task
-        at_goal = (self.position_error_m < task.success_position_error_m
-                   and self.orientation_error_rad < task.success_orientation_error_rad)
-        beyond_limits = (self.max_joint_speed_ratio > settings.limits.max_joint_speed_ratio
-                         or self.joint_range_excess_rad > 0.0)
+        at_goal = results.at_goal(self.position_error_m, self.orientation_error_rad, self.rest_object_speed_m_s, task)
+        beyond_limits = not results.within_limits(self.max_joint_speed_ratio, self.joint_range_excess_rad)
         # comparisons, not math.isnan: an untracked candidate is never taken for a trackable one
         trackable = self.tracked_position_error_m - self.position_error_m <= settings.tracking.max_error_increase_m
         # with reference offsets, followed to the goal also with the reference slightly off; ranked after
@@ -61,11 +60,10 @@ class Executed:
 
     def reaches(self, settings: Settings) -> bool:
         """Whether it is at the goal with the margin that ends the stages early (stages.goal_margin):
-        within that fraction of the success tolerances and of the arm's limits."""
-        task, limits, margin = settings.task, settings.limits, settings.stages.goal_margin
-        return (self.position_error_m < margin * task.success_position_error_m
-                and self.orientation_error_rad < margin * task.success_orientation_error_rad
-                and self.max_joint_speed_ratio <= limits.max_joint_speed_ratio and self.joint_range_excess_rad == 0.0)
+        within that fraction of the success tolerances, at rest and within the arm's limits."""
+        return results.at_goal(self.position_error_m, self.orientation_error_rad, self.rest_object_speed_m_s,
+                               settings.task, settings.stages.goal_margin) and \
+            results.within_limits(self.max_joint_speed_ratio, self.joint_range_excess_rad)
 
 
 def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings) -> Executed:
@@ -87,15 +85,19 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
 
 
 def judge(executor: PushProblem, evaluation, gains: TrackingSettings) -> Executed:
-    """The executed errors where the object comes to rest (tracking.rest_errors, the arm holding its last
-    position for gains.hold_s) and the arm limits over the horizon of an evaluation of `executor` (no
-    virtual force), untracked."""
+    """The executed errors where the object comes to rest (tracking.errors_at_rest, the arm holding its last
+    position for gains.hold_s), the object's speed then, and the arm's limits over the horizon and the hold, of
+    an evaluation of `executor` (no virtual force), untracked."""
+    nowhere = Executed(math.inf, math.inf, math.inf, math.inf, math.inf)
     if not evaluation.finite:
-        return Executed(math.inf, math.inf, math.inf, math.inf)
+        return nowhere
     scene = executor.scene
-    position_error, angle_error = tracking.rest_errors(executor.simulator, evaluation.states[-1], executor.task, gains)
+    held = tracking.held_motion(executor.simulator, evaluation.states[-1], gains)
+    position_error, angle_error = tracking.errors_at_rest(held, executor.task)
     if not math.isfinite(position_error):
-        return Executed(math.inf, math.inf, math.inf, math.inf)
-    speeds = np.abs(scene.arm_qvel(evaluation.states)) / scene.velocity_limit  # to the end
-    return Executed(position_error, angle_error, float(speeds.max()),
-                    scene.joint_range_excess(scene.arm_qpos(evaluation.states)))
+        return nowhere
+    speeds = np.abs(scene.arm_qvel(evaluation.states)) / scene.velocity_limit
+    held_speeds = np.abs(held.qdot) / scene.velocity_limit
+    return Executed(position_error, angle_error, max(float(speeds.max()), float(held_speeds.max())),
+                    max(scene.joint_range_excess(scene.arm_qpos(evaluation.states)), scene.joint_range_excess(held.q)),
+                    scene.object_speed_m_s(held.final_state))

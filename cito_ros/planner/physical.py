@@ -50,7 +50,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     Each start is a lottery ticket of a non-convex problem: about half the pushes succeed with the
     first and pay for one. With stages.parallel the next start runs beside the earliest unfinished
     one, on a thread of its own, and is abandoned when an earlier start succeeds: the threads change
-    how long a solve takes (README: shorter misses, longer easy pushes), never which plan is returned."""
+    how long a solve takes (docs/planner.md: The search over starts), never which plan is returned."""
     clock = SolveClock(settings, iteration_callback)
     stages = settings.stages
     labelled = len(stages.starts) > 1
@@ -77,7 +77,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
         at the goal with the margin; from the last script on, a success of its own or of a script before
         it. A script's success short of the margin lets the next scripts run, and the best is kept: at
         the tolerance, which start's plan is returned flips with a hair of change in the request, and a
-        script costs a second or two (README: stability)."""
+        script costs a second or two (docs/planner.md: The search over starts)."""
         executed, outcome = results[index]
         if outcome.status.interrupted:
             return True

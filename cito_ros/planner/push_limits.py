@@ -1,5 +1,5 @@
 """How far the arm can push the object steadily, and how little releasing it at speed adds: the
-kinematic bound behind the near-reach lottery (README: where a steady push ends). ROS-free.
+kinematic bound behind the near-reach lottery (docs/planner.md: Reach zones). ROS-free.
 
 The push reach (Scene.push_reach_m) counts the plate's rim at full stretch. A steady push keeps the
 plate's face on the object's face, and a push can also end in a release, the object sliding on after

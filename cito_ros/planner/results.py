@@ -16,6 +16,7 @@ import numpy as np
 
 from cito_ros.model.scene import Scene
 from cito_ros.model.simulator import Trajectory
+from cito_ros.settings import TaskSettings
 
 
 class Status(enum.Enum):
@@ -92,9 +93,13 @@ class Metrics:
     planned_position_error_m: float = metric("the contact model's plan, with the virtual force (the paper's)")
     planned_orientation_error_rad: float = metric("planned: final orientation error")
     physical_inaccuracy_Ns: float = metric("the planned virtual force's integral, sum of gamma dt (Table I)")
-    max_joint_speed_ratio: float = metric("executed: largest |qdot_j| / velocity limit_j over the horizon")
-    joint_range_excess_rad: float = metric("executed: farthest any joint goes beyond its position range (0 inside)")
+    max_joint_speed_ratio: float = metric("executed: largest |qdot_j| / velocity limit_j over the horizon and the "
+                                          "hold after it")
+    joint_range_excess_rad: float = metric("executed: farthest any joint goes beyond its position range over the "
+                                           "horizon and the hold (0 inside)")
     final_object_speed_m_s: float = metric("executed: the object's speed at the end of the horizon, before the hold")
+    rest_object_speed_m_s: float = metric("executed: the fastest any point of the object moves after the hold "
+                                          "(Scene.object_speed_m_s), where it is judged at rest")
     steady_reach_margin_m: float = metric("the steady push reach (cito_ros.planner.push_limits.steady_reach_m) "
                                           "minus the goal's distance from the arm base: inside it (>= 0) a steady "
                                           "push gets the object there; beyond it (< 0) only a strike at the joint "
@@ -108,8 +113,9 @@ class Metrics:
                                       "with starts side by side the five phases sum to more than the solve time")
     iterations: int = metric("solver iterations over all stages and starts")
     status: Status = metric("how the solve ended")
-    success: bool = metric("executed within task.success_position_error_m and success_orientation_error_rad, "
-                           "within limits.max_joint_speed_ratio and within every joint's range")
+    success: bool = metric("executed, at rest (task.rest_speed_m_s), within task.success_position_error_m and "
+                           "success_orientation_error_rad, every joint within its velocity limit and its range over "
+                           "the horizon and the hold (succeeds)")
     planned_success: bool = metric("planned error below task.planned_success_position_error_m (the paper's)")
 
     def as_dict(self) -> dict[str, Any]:
@@ -121,6 +127,48 @@ class Metrics:
 
 
 METRIC_NAMES = tuple(f.name for f in dataclasses.fields(Metrics))
+
+
+def within_limits(max_joint_speed_ratio: float, joint_range_excess_rad: float) -> bool:
+    """Every joint within its velocity limit (a ratio of at most 1.0: a robot faults or clamps beyond it) and
+    within its range."""
+    return max_joint_speed_ratio <= 1.0 and joint_range_excess_rad == 0.0
+
+
+def at_goal(position_error_m: float, orientation_error_rad: float, rest_object_speed_m_s: float, task: TaskSettings,
+            fraction: float = 1.0) -> bool:
+    """The object at rest (task.rest_speed_m_s) within `fraction` of the success tolerances of the goal. NaN
+    anywhere is no."""
+    return (position_error_m < fraction * task.success_position_error_m
+            and orientation_error_rad < fraction * task.success_orientation_error_rad
+            and rest_object_speed_m_s < task.rest_speed_m_s)
+
+
+def succeeds(metrics: Metrics, task: TaskSettings) -> bool:
+    """The success verdict of a plan's figures: finite and free of MuJoCo warnings, at the goal at rest, within
+    the arm's limits."""
+    return (metrics.status is not Status.NUMERICAL_ERROR
+            and at_goal(metrics.position_error_m, metrics.orientation_error_rad, metrics.rest_object_speed_m_s, task)
+            and within_limits(metrics.max_joint_speed_ratio, metrics.joint_range_excess_rad))
+
+
+def shortfalls(metrics: Metrics, task: TaskSettings) -> list[str]:
+    """What keeps a plan from success, one phrase per gate it fails."""
+    out = []
+    if metrics.status is Status.NUMERICAL_ERROR:
+        out.append("the motion is not finite or raised MuJoCo warnings")
+    if not metrics.position_error_m < task.success_position_error_m:
+        out.append(f"position {100 * metrics.position_error_m:.2f} cm (needs < {100 * task.success_position_error_m:g})")
+    if not metrics.orientation_error_rad < task.success_orientation_error_rad:
+        out.append(f"orientation {metrics.orientation_error_rad:.3f} rad (needs < {task.success_orientation_error_rad:g})")
+    if not metrics.rest_object_speed_m_s < task.rest_speed_m_s:
+        out.append(f"the object still moving at {1e3 * metrics.rest_object_speed_m_s:.1f} mm/s after the hold "
+                   f"(needs < {1e3 * task.rest_speed_m_s:g})")
+    if not metrics.max_joint_speed_ratio <= 1.0:
+        out.append(f"joint speeds {metrics.max_joint_speed_ratio:.3f} of their limits (needs <= 1)")
+    if not metrics.joint_range_excess_rad == 0.0:
+        out.append(f"a joint {metrics.joint_range_excess_rad:.4f} rad beyond its range")
+    return out
 ZONES = ("steady", "strike")  # goals inside the steady push reach, and beyond it (reached only by a strike)
 
 

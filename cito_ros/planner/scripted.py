@@ -2,7 +2,7 @@
 touches the object by construction. ROS-free.
 
 Discovery from zero torques is the hard part of a solve: each discovery is a lottery ticket that costs
-tens of iterations, and a push pays for one or more (README, the physical pipeline). A push that
+tens of iterations, and a push pays for one or more (docs/planner.md: The physical pipeline). A push that
 touches is easy to script, though: the plate goes behind the
 object, its face turned along the push, and moves through to where the object's face ends at the goal.
 Here that path is a minimum-jerk Cartesian motion of the plate centre (robot_candidate), turned into
@@ -14,7 +14,7 @@ the virtual force, as they refine a discovery.
 
 What the script does not know is left to those stages: the object's yaw, its sliding after the
 plate stops, and pushes beyond what a quasi-static push reaches (the paper's 25 cm pushes end near
-the arm's reach, where the optimizer shoves and lets the cube slide: README). A scripted start that
+the arm's reach, where the optimizer shoves and lets the cube slide: docs/planner.md). A scripted start that
 does not succeed costs its stages, and the discovery starts follow as before.
 """
 from __future__ import annotations

@@ -28,7 +28,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.model.scene import ARM_JOINTS, TABLE_TOP_Z_M
-from cito_ros.planner.results import IterationLog, Metrics, PlanResult, StageRecord, Status, zone_note
+from cito_ros.planner.results import IterationLog, Metrics, PlanResult, StageRecord, Status, shortfalls, zone_note
 from cito_ros.settings import SceneConfig, Settings
 
 Response = PlanPush.Response
@@ -134,10 +134,8 @@ def response_status(result: PlanResult, settings: Settings) -> tuple[int, str]:
     if m.success:
         return Response.STATUS_SUCCEEDED, ends + (f"; {note}" if note else "")
     return Response.STATUS_TASK_NOT_ACHIEVED, (
-        f"task not achieved: {ends}; success needs {100 * settings.task.success_position_error_m:.1f} cm, "
-        f"{settings.task.success_orientation_error_rad:.2f} rad, joint speeds within "
-        f"{settings.limits.max_joint_speed_ratio:.2f} of their limits (reached {m.max_joint_speed_ratio:.2f}) and "
-        f"joints within their ranges (beyond by {m.joint_range_excess_rad:.3f} rad)" + (f"; {note}" if note else ""))
+        f"task not achieved: {ends}; short of success by: {', '.join(shortfalls(m, settings.task))}"
+        + (f"; {note}" if note else ""))
 
 
 def metrics_msg(metrics: Metrics) -> PlanMetrics:

@@ -11,8 +11,6 @@ class LimitSettings:
     joint_speed_weight: float = setting("the discovery's weight of (|qdot| / limit - margin)^2 beyond the margin",
                                         minimum=0.0)
     joint_speed_margin: float = setting("fraction of the velocity limit where the speed term starts", positive=True)
-    max_joint_speed_ratio: float = setting("a plan faster than this fraction of a velocity limit is no success",
-                                           positive=True)
     joint_position_weight: float = setting("the discovery's weight of the joint positions beyond their margin",
                                            minimum=0.0)
     joint_position_margin_rad: float = setting("margin inside each joint's range (rad)", minimum=0.0)

@@ -40,6 +40,8 @@ class TaskSettings:
     success_position_error_m: float = setting("success: the executed plan ends this close to the goal (m)",
                                               positive=True)
     success_orientation_error_rad: float = setting("success: and this close in orientation (rad)", positive=True)
+    rest_speed_m_s: float = setting("success: the object at rest after the hold, no point of it faster than this (m/s)",
+                                    positive=True)
     planned_success_position_error_m: float = setting("the paper's criterion on the planned error (m)",
                                                       positive=True)
     position_error_scale_min_m: float = setting("floor of the position-cost normaliser ||p_0 - p*|| (m)",

@@ -177,7 +177,7 @@ def roughness_benchmark(scenes: tuple[str, ...] = ("default", "fine_step"), beta
                         torque_amplitude_Nm: float = 5e-3, overrides: dict | None = None, seed: int = 0,
                         plans: bool = False) -> dict:
     """How far the executed outcome of a push jumps under tiny changes of the plan, per scene: why a
-    request moved by 1e-9 can end elsewhere (README: tiny changes). For each paper start pose (beta,
+    request moved by 1e-9 can end elsewhere (docs/planner.md: Tiny changes and rough pushes). For each paper start pose (beta,
     the default target), the scripted push (cito_ros.planner.scripted) or, with `plans`, the plan the planner
     returns (SCM) is scanned along `directions` seeded random directions at `points` (odd) evenly
     spaced amplitudes: its joint reference (the executed trajectory of a plan), tracked by the PD

@@ -74,7 +74,7 @@ PERTURBATIONS = {"none": (0.0, 0.0), "target x +1e-9 m": (1e-9, 0.0), "start q +
 
 # the returned plan's joint trajectory tracked with its reference off by this many seeded smooth offsets of up
 # to this much (cito_ros.planner.tracking.offset_references, seeded by the goal: others than the planner's own check
-# with tracking.reference_offsets): whether a success survives a servo's small error (README: how rough a push is)
+# with tracking.reference_offsets): whether a success survives a servo's small error (docs/planner.md: Tiny changes and rough pushes)
 OFFSETS = 4
 OFFSET_AMPLITUDE_RAD = 1e-4
 

@@ -96,7 +96,7 @@ class IlqrSolver:
         length the line search kept says how far the Gauss-Newton model held; lowering mu after every
         success, as plain Levenberg-Marquardt does, made every other iteration pay for a failed trial
         (four rollouts), because contact leaves the model's region of validity after a tenth of the
-        step in most iterations (README, the physical pipeline: the experiments behind it)."""
+        step in most iterations (docs/experiments.md)."""
         if alpha >= self.step_lengths.max():
             return mu / self.mu_factor if mu / self.mu_factor >= self.mu_min else 0.0
         return mu

@@ -1,0 +1,46 @@
+"""The planner node stopped while it works: SIGTERM during a solve cancels it and finishes every bag. The node
+in its own process, a client in this one, over Fast DDS on an isolated domain."""
+import math
+import os
+import signal
+import time
+from pathlib import Path
+
+from cito_msgs.srv import PlanPush
+from test_node import Client, read_with_mcap, read_with_rosbags, request, start_node
+
+# a turn in place that no push achieves: the search runs every start, for tens of seconds
+LONG = request("vscm", start=None, x=0.99, q=(0.0, 0.0, math.sin(0.6), math.cos(0.6)))
+
+
+def test_sigterm_during_a_solve(tmp_path):
+    domain = 101 + os.getpid() % 100
+    process = start_node(domain, tmp_path)
+    c = Client(domain)
+    try:
+        assert c.wait_for_service()
+        done = c.call(request("scm"))
+        assert done.success
+        c.spin_for(0.5)
+        c.received["/cito/progress"].clear()
+        future = c.call_async(LONG)
+        deadline = time.monotonic() + 60
+        while len(c.received["/cito/progress"]) < 3 and time.monotonic() < deadline:
+            c.spin_for(0.05)
+        assert len(c.received["/cito/progress"]) >= 3 and not future.done()
+        assert {m.request_id for m in c.received["/cito/progress"]} == {2}
+        process.send_signal(signal.SIGTERM)
+        sent = time.monotonic()
+        process.wait(timeout=5.0)
+        assert time.monotonic() - sent < 5.0
+        bags = sorted(p for p in tmp_path.iterdir() if not p.name.endswith(".partial"))
+        assert len(bags) == 2 and not list(tmp_path.glob("*.partial"))
+        first = read_with_rosbags(Path(done.bag_path))
+        assert first["/cito/plan_result"][0][1].metrics.position_error_m == done.metrics.position_error_m
+        cancelled = read_with_mcap(bags[-1])  # the interrupted plan's bag was finished too
+        (_, result), = cancelled["/cito/plan_result"]
+        assert result.status == PlanPush.Response.STATUS_CANCELLED and result.metrics.status == "cancelled"
+    finally:
+        if process.poll() is None:
+            process.kill()
+        c.close()
