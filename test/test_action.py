@@ -17,7 +17,8 @@ from cito_msgs.srv import PlanPush
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
-from test_node import Client, read_with_mcap, read_with_rosbags, request, start_node
+
+from node_harness import Client, read_with_mcap, read_with_rosbags, request, start_node, wait_for_bag
 
 STEADY_GOAL = dict(start=None, model="vscm", x=1.14)  # the main job's: 15 cm from q0(beta = 5), inside the steady reach
 # a turn in place that no push achieves: every start runs, for tens of seconds
@@ -119,6 +120,7 @@ def test_a_busy_node_rejects_a_second_goal_and_a_cancelled_goal_returns_its_best
     result = answer.result
     assert result.status == PlanPush.Response.STATUS_CANCELLED and not result.success
     assert result.metrics.status == "cancelled" and len(result.trajectory.points) > 1  # the best plan so far
+    assert wait_for_bag(Path(result.bag_path))  # the cancelled plan's bag is finished too
     for reader in (read_with_mcap, read_with_rosbags):
         (_, recorded), = reader(Path(result.bag_path))["/cito/plan_result"]
         assert recorded.status == PlanPush.Response.STATUS_CANCELLED
@@ -136,6 +138,7 @@ def test_a_moved_and_rotated_cube_is_pushed_to_its_goal(user):
     result = answer.result
     assert answer.status == GoalStatus.STATUS_SUCCEEDED and result.success, result.message
     assert result.metrics.position_error_m < 0.02 and result.metrics.orientation_error_rad < 0.15
+    assert wait_for_bag(Path(result.bag_path))
     (_, planned), = read_with_mcap(Path(result.bag_path))["/cito/plan_request"]
     assert (planned.object_pose.position.x, planned.object_pose.position.y) == (0.99, 0.05)
     assert planned.object_pose.orientation.z == pytest.approx(math.sin(yaw / 2))
@@ -170,6 +173,7 @@ def test_a_parameter_change_applies_to_the_next_plan_and_bad_values_are_refused(
     try:
         handle = client.send(model="")
         result = client.result(handle).result
+        assert wait_for_bag(Path(result.bag_path))
         (_, planned), = read_with_mcap(Path(result.bag_path))["/cito/plan_request"]
         assert planned.contact_model == "cccm"
         assert client.set_parameter("solver.time_limit_s", 0.5)[0]

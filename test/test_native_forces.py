@@ -2,12 +2,13 @@
 import mujoco
 import numpy as np
 import pytest
-from conftest import approach_torques
 
 from cito_ros.model import oracle
 from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.scripted import joint_path
+
+from conftest import approach_torques
 
 
 def random_states(scene, count, seed=0):

@@ -7,7 +7,8 @@ import time
 from pathlib import Path
 
 from cito_msgs.srv import PlanPush
-from test_node import Client, read_with_mcap, read_with_rosbags, request, start_node
+
+from node_harness import Client, read_with_mcap, read_with_rosbags, recorded_counts, request, start_node
 
 # a turn in place that no push achieves: the search runs every start, for tens of seconds
 LONG = request("vscm", start=None, x=0.99, q=(0.0, 0.0, math.sin(0.6), math.cos(0.6)))
@@ -40,6 +41,30 @@ def test_sigterm_during_a_solve(tmp_path):
         cancelled = read_with_mcap(bags[-1])  # the interrupted plan's bag was finished too
         (_, result), = cancelled["/cito/plan_result"]
         assert result.status == PlanPush.Response.STATUS_CANCELLED and result.metrics.status == "cancelled"
+    finally:
+        if process.poll() is None:
+            process.kill()
+        c.close()
+
+
+def test_sigterm_while_a_bag_is_written_finishes_it(tmp_path):
+    """The answer comes before its bag is written; a SIGTERM right after it still leaves the bag whole."""
+    domain = 131 + os.getpid() % 100
+    process = start_node(domain, tmp_path)
+    c = Client(domain)
+    try:
+        assert c.wait_for_service()
+        answered = c.call(request("scm"))
+        assert answered.success
+        bag = Path(answered.bag_path)
+        recording = bag.with_name(bag.name + ".partial").exists()
+        process.send_signal(signal.SIGTERM)
+        process.wait(timeout=60.0)
+        assert recording, "the bag was finished before the answer: nothing to test"
+        assert not list(tmp_path.glob("*.partial")) and (bag / "metadata.yaml").is_file()
+        recorded = read_with_rosbags(bag)
+        assert {topic: len(messages) for topic, messages in recorded.items() if topic != "/cito/progress"} == \
+            recorded_counts(answered)
     finally:
         if process.poll() is None:
             process.kill()

@@ -3,11 +3,12 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import approach_torques
 
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import Scene
 from cito_ros.model.simulator import Simulator
+
+from conftest import approach_torques
 
 
 def end_effector(scene, q):

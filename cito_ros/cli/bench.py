@@ -11,6 +11,7 @@
     cito-bench figures [--out DIR]                snapshots and plots of planned motions
     cito-bench roughness [--scenes S ...] [--plans] [--json]   how far a push's outcome jumps under tiny changes
     cito-bench push-limits [--heights H ...] [--step M] [--json]   where a push that holds its height can leave the cube
+    cito-bench round-trip [--n 20] [--seed S] [--json]   the node's answer time beyond the solve, and its bags
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -161,6 +162,10 @@ def main(argv: list[str] | None = None) -> int:
                              "the object's face, its bottom, middle and top (0.06, 0.10, 0.14 m for the cube)")
     limits.add_argument("--step", type=float, default=0.005, help="spacing of the plate positions along the push (m)")
     limits.add_argument("--json", action="store_true", help="print one JSON object")
+    trip = commands.add_parser("round-trip", help="the node's answer time beyond the solve, and when its bags are done")
+    trip.add_argument("--n", type=positive_int, default=20, help="seeded short pushes, each as a call and as a goal")
+    trip.add_argument("--seed", type=int, default=0)
+    trip.add_argument("--json", action="store_true", help="print one JSON object")
     hashes = commands.add_parser("plan-hashes", help="the paper's cases and the first targets goals, by plan hash")
     hashes.add_argument("--goals", type=int, default=10, help="targets goals (seed 0), each with every model")
     hashes.add_argument("--out", type=Path, default=None, help="write the hashes to this JSON file")
@@ -281,6 +286,13 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as error:  # a step that is not positive
             parser.error(str(error))
         print(json.dumps(result) if args.json else push_limits_table(result))
+    elif args.command == "round-trip":
+        from cito_ros.cli import round_trip
+
+        bar = progress_bar(2 * args.n, "round trips", "request")
+        result = round_trip.round_trip_benchmark(args.n, args.seed, progress=lambda done, _: advance(bar, done))
+        bar.close()
+        print(json.dumps(result) if args.json else round_trip.report_text(result))
     elif args.command == "plan-hashes":
         hashes = paper.plan_hashes(args.goals, workers=args.workers, address=args.address)
         text = json.dumps(hashes, indent=1, sort_keys=True)

@@ -2,9 +2,12 @@
 
 A `BagWriter` writes one bag: a folder holding `<name>_0.mcap` (profile ros2,
 schemas in `ros2msg` with their dependencies, each channel carrying its
-offered QoS as rosbag2's MCAP plugin does, messages in CDR encoded by
-mcap_ros2's encoder from message objects or dicts) and a rosbag2
-`metadata.yaml` (version 9, storage mcap) as `ros2 bag` tools expect. The bag is written in a
+offered QoS as rosbag2's MCAP plugin does, messages in CDR) and a rosbag2
+`metadata.yaml` (version 9, storage mcap) as `ros2 bag` tools expect.
+Messages come as CDR bytes or as message objects, which are serialized by
+rclpy's typesupport (C) but for the types with sequences of numbers wider than
+a byte (`exact_encoding_needed`), which mcap_ros2's encoder writes: for those
+Jazzy's typesupport can append stray bytes that strict readers refuse. The bag is written in a
 `.partial` folder and renamed into place only when it is complete and synced,
 so a finished bag is never touched again and a crash leaves no half-written
 bag under the final name.
@@ -27,11 +30,17 @@ import yaml
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer as McapWriter
 from mcap_ros2._dynamic import serialize_dynamic
+from rclpy.serialization import serialize_message
 
 PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",
               "uint32", "int64", "uint64", "string", "wstring"}
 SEPARATOR = "=" * 80
 INFINITE_S, INFINITE_NS = 9223372036, 854775807
+# rclpy's serialize_message in Jazzy overestimates the serialized size of a message with an empty sequence of
+# numbers wider than a byte (measured: +8 bytes for a JointState with empty velocities, +8 per point of a
+# JointTrajectory, whose accelerations are empty, +4 for an empty Float64MultiArray) and returns that many
+# stray bytes at the end, which rosbags refuses ("CDR message size mismatch")
+BYTE_SEQUENCES_OK = {"uint8", "int8", "byte", "char", "bool", "string", "wstring"}
 
 
 def _share_dirs() -> list[Path]:
@@ -66,6 +75,24 @@ def _field_types(package: str, text: str) -> list[str]:
         else:
             types.append(f"{package}/msg/{base}")
     return types
+
+
+def exact_encoding_needed(type_name: str) -> bool:
+    """Whether `type_name` (pkg/msg/Name) or a message in it has a sequence of numbers wider than a byte."""
+    seen, stack = set(), [type_name]
+    while stack:
+        name = stack.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        text = _interface_file(name, ".msg").read_text()
+        for line in text.splitlines():
+            tokens = line.split("#", 1)[0].split()
+            if len(tokens) >= 2 and "=" not in tokens[1] and re.search(r"\[(<=)?\d*\]$", tokens[0]) and \
+                    "<=" not in tokens[0].split("[")[0] and tokens[0].split("[")[0] in PRIMITIVES - BYTE_SEQUENCES_OK:
+                return True
+        stack.extend(_field_types(name.split("/")[0], text))
+    return False
 
 
 def message_definition(type_name: str) -> str:
@@ -132,7 +159,7 @@ class BagWriter:
         self._stream = open(self._partial / self._file_name, "wb")
         self._writer = McapWriter(self._stream, compression=CompressionType.NONE)
         self._writer.start(profile="ros2", library="cito_ros")
-        self._schemas: dict[str, tuple[int, Any]] = {}  # type -> (schema id, CDR encoder)
+        self._schemas: dict[str, tuple[int, Any]] = {}  # type -> (schema id, CDR encoder of message objects)
         self._topics: dict[str, dict[str, Any]] = {}
         self._times: list[int] = []
         self.closed = False
@@ -143,18 +170,20 @@ class BagWriter:
         if type_name not in self._schemas:
             text = message_definition(type_name)
             schema = self._writer.register_schema(type_name, SchemaEncoding.ROS2, text.encode())
-            self._schemas[type_name] = (schema, serialize_dynamic(type_name, text)[type_name])
+            encode = serialize_dynamic(type_name, text)[type_name] if exact_encoding_needed(type_name) \
+                else serialize_message
+            self._schemas[type_name] = (schema, encode)
         channel = self._writer.register_channel(
             topic, MessageEncoding.CDR, self._schemas[type_name][0],
             metadata={"offered_qos_profiles": yaml.safe_dump(qos.as_metadata(), sort_keys=False)})
         self._topics[topic] = {"type": type_name, "qos": qos, "count": 0, "channel": channel}
 
     def write(self, topic: str, message: Any, time_ns: int) -> None:
-        """Write a message (ROS message object or dict) with log and publish time time_ns."""
+        """Write a message (its CDR bytes, or a ROS message object) with log and publish time time_ns."""
         if self.closed:
             raise ValueError("the bag is closed")
         entry = self._topics[topic]
-        data = self._schemas[entry["type"]][1](message)
+        data = message if isinstance(message, bytes) else self._schemas[entry["type"]][1](message)
         self._writer.add_message(entry["channel"], log_time=time_ns, data=data, publish_time=time_ns,
                                  sequence=entry["count"])
         entry["count"] += 1

@@ -21,7 +21,6 @@ from cito_msgs.msg import (
 )
 from cito_msgs.srv import PlanPush
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3, Wrench
-from nav_msgs.msg import Path
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -197,22 +196,21 @@ def progress_msg(entry: IterationLog, request_id: int, contact_model: str, stamp
 
 @dataclass(frozen=True)
 class PlanMessages:
-    """Everything a finished plan publishes; per-step messages are stamped along the horizon and the hold
-    after it."""
+    """What a finished plan answers with; stamped at the start of its horizon, the per-step ones along the horizon
+    and the hold after it."""
 
     trajectory: JointTrajectory
     contact_forces: list[ContactForce]
-    object_poses: list[PoseStamped]
-    object_path: Path
     result: PlanResultMsg
-    step_stamps_ns: list[int]   # the stamp of each contact force / object pose
+    step_stamps_ns: list[int]   # the stamp of each contact force
+    state_stamps_ns: list[int]  # the stamp of each state (one more than the steps)
 
 
 def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: str, bag_path: str,
                   target_orientation: np.ndarray, settings: Settings) -> PlanMessages:
-    """Build the messages of a plan whose horizon starts at stamp_ns: the joint trajectory over the horizon
-    (what a robot's controller is sent), the per-step messages over the whole motion (result.executed_motion:
-    the horizon, then the arm held where the object comes to rest)."""
+    """The answer's messages of a plan whose horizon starts at stamp_ns: the joint trajectory over the horizon
+    (what a robot's controller is sent), the contact forces over the whole motion (result.executed_motion: the
+    horizon, then the arm held where the object comes to rest) and the result."""
     trajectory = result.trajectory
     header = Header(stamp=time_msg(stamp_ns), frame_id=frame_id)
     steps = len(trajectory.gamma_N)
@@ -223,34 +221,40 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
         joint_trajectory.points.append(JointTrajectoryPoint(
             positions=trajectory.q[t].tolist(), velocities=trajectory.qdot[t].tolist(), effort=effort.tolist(),
             time_from_start=duration_msg(t * dt)))
-    trajectory = result.executed_motion
-    steps = len(trajectory.gamma_N)
+    motion = result.executed_motion
+    steps = len(motion.gamma_N)
     stamps = [stamp_ns + int(round(t * dt * 1e9)) for t in range(steps + 1)]
     forces = []
     for t in range(steps):
-        has_stiffness = trajectory.stiffness_N is not None
+        has_stiffness = motion.stiffness_N is not None
         forces.append(ContactForce(
             header=Header(stamp=time_msg(stamps[t]), frame_id=frame_id),
-            gamma_n=float(trajectory.gamma_N[t]), has_stiffness=has_stiffness,
-            stiffness_n=float(trajectory.stiffness_N[t]) if has_stiffness else 0.0,
-            signed_distance_m=float(trajectory.signed_distance_m[t]),
-            virtual_force=vector(trajectory.virtual_force_N[t]),
-            contact_count=int(trajectory.contact_count[t]),
-            contact_wrench=Wrench(force=vector(trajectory.contact_force_N[t]),
-                                  torque=vector(trajectory.contact_torque_Nm[t])),
-            contact_point=point_msg(trajectory.contact_point_m[t])))
-    poses = [PoseStamped(header=Header(stamp=time_msg(stamps[t]), frame_id=frame_id),
-                         pose=pose_msg(trajectory.object_position_m[t], trajectory.object_quaternion[t]))
-             for t in range(steps + 1)]
+            gamma_n=float(motion.gamma_N[t]), has_stiffness=has_stiffness,
+            stiffness_n=float(motion.stiffness_N[t]) if has_stiffness else 0.0,
+            signed_distance_m=float(motion.signed_distance_m[t]),
+            virtual_force=vector(motion.virtual_force_N[t]),
+            contact_count=int(motion.contact_count[t]),
+            contact_wrench=Wrench(force=vector(motion.contact_force_N[t]),
+                                  torque=vector(motion.contact_torque_Nm[t])),
+            contact_point=point_msg(motion.contact_point_m[t])))
     status, message = response_status(result, settings)
     x, y, z, w = target_orientation
     result_msg = PlanResultMsg(
         header=header, request_id=request_id, status=status, message=message, contact_model=result.contact_model,
         target_pose=pose_msg(result.target_position_m, np.array([w, x, y, z])),
-        final_object_pose=poses[-1].pose,
+        final_object_pose=pose_msg(motion.object_position_m[-1], motion.object_quaternion[-1]),
         planned_object_pose=pose_msg(result.planned.object_position_m[-1], result.planned.object_quaternion[-1]),
         metrics=metrics_msg(result.metrics), stages=stage_msgs(result.stages), bag_path=bag_path)
-    return PlanMessages(joint_trajectory, forces, poses, Path(header=header, poses=poses), result_msg, stamps[:steps])
+    return PlanMessages(joint_trajectory, forces, result_msg, stamps[:steps], stamps)
+
+
+def object_poses(result: PlanResult, stamps_ns: list[int], frame_id: str) -> list[PoseStamped]:
+    """The object's pose at every state of the executed motion (the horizon, then the hold): the last is where
+    the executed error is measured."""
+    motion = result.executed_motion
+    return [PoseStamped(header=Header(stamp=time_msg(stamp), frame_id=frame_id),
+                        pose=pose_msg(motion.object_position_m[t], motion.object_quaternion[t]))
+            for t, stamp in enumerate(stamps_ns)]
 
 
 def fill_response(response, messages: PlanMessages):

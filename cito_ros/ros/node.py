@@ -15,13 +15,18 @@ thread, one plan at a time: a goal that arrives meanwhile is rejected (the reaso
 Topics: /cito/joint_trajectory, /cito/object_path, /cito/plan_result (transient local);
 /joint_states, /cito/scene_markers, /cito/contact_forces, /cito/object_pose (one message per
 simulation step, stamped along the planned horizon and the hold after it, where the object comes to
-rest); /cito/plan_request, /cito/progress. Each
-plan is recorded as a rosbag2 (MCAP) bag under node.bag_directory. SIGINT/SIGTERM cancel a
-running solve, finish its bag and exit.
+rest); /cito/plan_request, /cito/progress. Each plan is recorded as a rosbag2 (MCAP) bag under
+node.bag_directory.
+
+The answer goes out as soon as the plan is evaluated, with its bag path; the latched topics, the
+per-state topics and the rest of the bag follow, from the recorder's thread (cito_ros.ros.recorder),
+while the next request may already be planning. SIGINT/SIGTERM cancel a
+running solve, finish every bag and exit.
 """
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import itertools
 import math
 import signal
@@ -43,21 +48,26 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from cito_ros.model.scene import start_configuration
-from cito_ros.planner.builder import PushRequest, scene_config
+from cito_ros.model.scene import Scene, start_configuration
+from cito_ros.planner import push_limits
+from cito_ros.planner.builder import PushRequest, build_problem, scene_config
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import IterationLog
-from cito_ros.ros import markers as ros_markers, messages as ros_messages, parameters as ros_parameters
-from cito_ros.ros.bag import BagWriter, TopicQos
+from cito_ros.ros import messages as ros_messages, parameters as ros_parameters
+from cito_ros.ros.bag import TopicQos
+from cito_ros.ros.markers import SceneMarkers, joint_states
+from cito_ros.ros.recorder import Recorder, Recording
 from cito_ros.settings.paths import config_path
 
 NAME = "/cito/plan_push"  # the action's and the service's
 STEP_DEPTH = 1000  # a plan's per-step messages (321 at the default horizon) fit in one history
+DRAIN_S = 60.0     # at shutdown, the longest the node waits for its bags to be finished
 Status = PlanPush.Response
 
 
@@ -78,6 +88,9 @@ TOPICS = {
     "/joint_states": (JointState, "sensor_msgs/msg/JointState", STEP_DEPTH, False),
     "/cito/scene_markers": (MarkerArray, "visualization_msgs/msg/MarkerArray", STEP_DEPTH, False),
 }
+# every topic in every bag, with the QoS it is offered with
+BAG_TOPICS = {topic: (interface, TopicQos(transient_local=latched, depth=depth))
+              for topic, (_, interface, depth, latched) in TOPICS.items()}
 
 
 class Answer:
@@ -115,6 +128,9 @@ class PlannerNode(Node):
         self._cancel = threading.Event()  # the running plan's
         self._busy = threading.Lock()
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="cito_solver")
+        self.recorder = Recorder(on_error=lambda message: self.get_logger().error(message))
+        self._markers: dict = {}  # scene (its object's pose aside) -> SceneMarkers; used on the recorder's thread
+        self._worker.submit(self._warm_up)
         self._request_ids = itertools.count(1)
         self.get_logger().info(f"ready: action and service {NAME}, default contact model "
                                f"{self.settings.node.default_contact_model}, bags in {self.bag_directory}")
@@ -198,10 +214,8 @@ class PlannerNode(Node):
     def _plan(self, inputs: ros_messages.PlanInputs, scene, settings, request_id: int, received_ns: int,
               feedback: Callable[[IterationLog], None] | None) -> Answer:
         name = time.strftime("plan_%Y%m%d_%H%M%S", time.localtime(received_ns / 1e9)) + f"_{request_id:04d}"
-        bag = BagWriter(self.bag_directory / name)
+        bag = self.recorder.open(self.bag_directory / name, BAG_TOPICS)
         try:
-            for topic, (_, interface, depth, latched) in TOPICS.items():
-                bag.add_topic(topic, interface, TopicQos(transient_local=latched, depth=depth))
             start_q = inputs.start_q if inputs.start_q is not None else start_configuration(settings.beta)
             self._emit(bag, "/cito/plan_request", ros_messages.request_msg(
                 inputs, start_q, scene, request_id, received_ns, self.frame_id), received_ns)
@@ -233,20 +247,7 @@ class PlannerNode(Node):
             stamp = self.get_clock().now().nanoseconds
             messages = ros_messages.plan_messages(result, request_id, stamp, self.frame_id, str(bag.path),
                                                   inputs.target_orientation, settings)
-            self._emit(bag, "/cito/joint_trajectory", messages.trajectory, stamp)
-            self._emit(bag, "/cito/object_path", messages.object_path, stamp)
-            self._emit(bag, "/cito/plan_result", messages.result, stamp)
-            state_stamps = [pose.header.stamp.sec * 10**9 + pose.header.stamp.nanosec for pose in messages.object_poses]
-            for force, step_ns in zip(messages.contact_forces, messages.step_stamps_ns):
-                self._emit(bag, "/cito/contact_forces", force, step_ns)
-            for pose, state_ns in zip(messages.object_poses, state_stamps):
-                self._emit(bag, "/cito/object_pose", pose, state_ns)
-            motion = result.executed_motion  # the horizon, then the arm held where the object comes to rest
-            for joints, state_ns in zip(ros_markers.joint_states(motion, state_stamps, self.frame_id), state_stamps):
-                self._emit(bag, "/joint_states", joints, state_ns)
-            for markers, state_ns in zip(ros_markers.scene_markers(result.scene, motion, state_stamps,
-                                                                   self.frame_id), state_stamps):
-                self._emit(bag, "/cito/scene_markers", markers, state_ns)
+            self.recorder.submit(self._publish_plan, result, messages, bag, recording=bag)
             self.get_logger().info(f"plan {request_id}: {messages.result.message} ({result.metrics.solve_time_s:.2f} s, "
                                    f"bag {bag.path})")
             return Answer(messages.result.status, messages.result.message, str(bag.path), messages)
@@ -254,22 +255,66 @@ class PlannerNode(Node):
             self.get_logger().error(f"plan {request_id} failed: {error!r}")
             return self._refuse(Status.STATUS_SOLVER_FAILED, f"internal error: {error!r}", str(bag.path))
         finally:
-            bag.close()
+            bag.close()  # queued after everything of the plan, the per-state topics included
 
-    def _emit(self, bag: BagWriter, topic: str, message, stamp_ns: int) -> None:
+    def _publish_plan(self, result, messages: ros_messages.PlanMessages, bag: Recording) -> None:
+        """On the recorder's thread, right after the answer: the latched topics, then the per-state topics of the
+        plan (the horizon, then the arm held where the object comes to rest); each per-state message serialized
+        once where rclpy's bytes are exact (cito_ros.ros.bag.exact_encoding_needed), published and written."""
+        stamp = messages.state_stamps_ns[0]
+        poses = ros_messages.object_poses(result, messages.state_stamps_ns, self.frame_id)
+        path = PathMsg(header=messages.result.header, poses=poses)
+        for topic, message in (("/cito/joint_trajectory", messages.trajectory), ("/cito/plan_result", messages.result),
+                               ("/cito/object_path", path)):
+            self.publishers_[topic].publish(message)
+            bag.write_now(topic, message, stamp)
+        motion, stamps = result.executed_motion, messages.state_stamps_ns
+        per_state = [
+            ("/cito/contact_forces", map(serialize_message, messages.contact_forces), messages.step_stamps_ns),
+            ("/cito/object_pose", map(serialize_message, poses), stamps),
+            ("/joint_states", joint_states(motion, stamps, self.frame_id), stamps),  # exact_encoding_needed
+            ("/cito/scene_markers", self._scene_markers(result.scene).serialize(motion, stamps), stamps),
+        ]
+        for topic, frames, frame_stamps in per_state:
+            publisher = self.publishers_[topic]
+            for frame, stamp_ns in zip(frames, frame_stamps):
+                publisher.publish(frame)
+                bag.write_now(topic, frame, stamp_ns)
+
+    def _scene_markers(self, scene: Scene) -> SceneMarkers:
+        """The marker template of a scene (its object's pose aside), made once; on the recorder's thread."""
+        config = scene.config
+        key = dataclasses.replace(config, object=dataclasses.replace(config.object, position_m=(0.0, 0.0), yaw_rad=0.0))
+        if key not in self._markers:
+            self._markers[key] = SceneMarkers(scene, self.frame_id)
+        return self._markers[key]
+
+    def _warm_up(self) -> None:
+        """What the first plan of the configured scene would otherwise pay for on top of its solve: the steady push
+        reach of its answer's zone, and the scene's marker template (on the worker, and the recorder's thread)."""
+        try:
+            posed = build_problem(self.settings, PushRequest(self.settings.node.default_contact_model))
+            push_limits.steady_reach_m(posed.scene, posed.initial_state)
+            self.recorder.submit(self._scene_markers, posed.scene)
+        except Exception as error:  # the first plan pays for it instead
+            self.get_logger().warning(f"warm-up failed: {error!r}")
+
+    def _emit(self, bag: Recording, topic: str, message, stamp_ns: int) -> None:
         self.publishers_[topic].publish(message)
         bag.write(topic, message, stamp_ns)
 
     # ------------------------------------------------------------------ shutdown
 
     def stop(self, timeout_s: float) -> None:
-        """Cancel a running solve and wait (bounded) until its bag is finished."""
+        """Cancel a running solve, wait (bounded) until it has answered, then until every bag is finished."""
         self.stopping.set()
         self._cancel.set()
         self._worker.shutdown(wait=False, cancel_futures=True)
         deadline = time.monotonic() + timeout_s
         while self._busy.locked() and time.monotonic() < deadline:
             time.sleep(0.02)
+        if not self.recorder.drain(DRAIN_S):
+            self.get_logger().error(f"bags still being written after {DRAIN_S:g} s; they stay .partial")
 
 
 def main(argv: list[str] | None = None) -> int:
