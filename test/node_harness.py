@@ -3,6 +3,7 @@ over Fast DDS on an isolated domain (localhost only), the plan requests, and bot
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import subprocess
@@ -54,6 +55,21 @@ def start_node(domain: int, bag_directory: Path, *extra: str) -> subprocess.Pope
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     return subprocess.Popen([NODE, "--ros-args", "-p", f"node.bag_directory:={bag_directory}", *extra],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+@contextlib.contextmanager
+def node_process(domain: int, bag_directory: Path):
+    """A planner node in its own process and a Client of it, once its service is up; the node killed on the way out
+    if it still runs."""
+    process = start_node(domain, bag_directory)
+    client = Client(domain)
+    try:
+        assert client.wait_for_service(), "the planner service did not appear"
+        yield process, client
+    finally:
+        if process.poll() is None:
+            process.kill()
+        client.close()
 
 
 class Client:

@@ -8,18 +8,14 @@ from pathlib import Path
 
 from cito_msgs.srv import PlanPush
 
-from node_harness import Client, read_with_mcap, read_with_rosbags, recorded_counts, request, start_node
+from node_harness import node_process, read_with_mcap, read_with_rosbags, recorded_counts, request
 
 # a turn in place that no push achieves: the search runs every start, for tens of seconds
 LONG = request("vscm", start=None, x=0.99, q=(0.0, 0.0, math.sin(0.6), math.cos(0.6)))
 
 
 def test_sigterm_during_a_solve(tmp_path):
-    domain = 101 + os.getpid() % 100
-    process = start_node(domain, tmp_path)
-    c = Client(domain)
-    try:
-        assert c.wait_for_service()
+    with node_process(101 + os.getpid() % 100, tmp_path) as (process, c):
         done = c.call(request("scm"))
         assert done.success
         c.spin_for(0.5)
@@ -41,19 +37,11 @@ def test_sigterm_during_a_solve(tmp_path):
         cancelled = read_with_mcap(bags[-1])  # the interrupted plan's bag was finished too
         (_, result), = cancelled["/cito/plan_result"]
         assert result.status == PlanPush.Response.STATUS_CANCELLED and result.metrics.status == "cancelled"
-    finally:
-        if process.poll() is None:
-            process.kill()
-        c.close()
 
 
 def test_sigterm_while_a_bag_is_written_finishes_it(tmp_path):
     """The answer comes before its bag is written; a SIGTERM right after it still leaves the bag whole."""
-    domain = 131 + os.getpid() % 100
-    process = start_node(domain, tmp_path)
-    c = Client(domain)
-    try:
-        assert c.wait_for_service()
+    with node_process(131 + os.getpid() % 100, tmp_path) as (process, c):
         answered = c.call(request("scm"))
         assert answered.success
         bag = Path(answered.bag_path)
@@ -65,7 +53,3 @@ def test_sigterm_while_a_bag_is_written_finishes_it(tmp_path):
         recorded = read_with_rosbags(bag)
         assert {topic: len(messages) for topic, messages in recorded.items() if topic != "/cito/progress"} == \
             recorded_counts(answered)
-    finally:
-        if process.poll() is None:
-            process.kill()
-        c.close()

@@ -77,38 +77,37 @@ def _field_types(package: str, text: str) -> list[str]:
     return types
 
 
-def exact_encoding_needed(type_name: str) -> bool:
-    """Whether `type_name` (pkg/msg/Name) or a message in it has a sequence of numbers wider than a byte."""
-    seen, stack = set(), [type_name]
+def _definitions(type_name: str) -> list[tuple[str, str]]:
+    """(pkg/msg/Name, .msg text) of `type_name` and then of every message it contains, each once, depth first in
+    field order."""
+    seen, order, stack = set(), [], [type_name]
     while stack:
         name = stack.pop()
         if name in seen:
             continue
         seen.add(name)
         text = _interface_file(name, ".msg").read_text()
+        order.append((name, text))
+        stack.extend(reversed(_field_types(name.split("/")[0], text)))
+    return order
+
+
+def exact_encoding_needed(type_name: str) -> bool:
+    """Whether `type_name` (pkg/msg/Name) or a message in it has a sequence of numbers wider than a byte."""
+    for _, text in _definitions(type_name):
         for line in text.splitlines():
             tokens = line.split("#", 1)[0].split()
             if len(tokens) >= 2 and "=" not in tokens[1] and re.search(r"\[(<=)?\d*\]$", tokens[0]) and \
-                    "<=" not in tokens[0].split("[")[0] and tokens[0].split("[")[0] in PRIMITIVES - BYTE_SEQUENCES_OK:
+                    tokens[0].split("[")[0] in PRIMITIVES - BYTE_SEQUENCES_OK:
                 return True
-        stack.extend(_field_types(name.split("/")[0], text))
     return False
 
 
 def message_definition(type_name: str) -> str:
     """The ros2msg schema text of `type_name` (pkg/msg/Name): its .msg text, then every
     dependency once, each after a separator line and `MSG: pkg/msg/Name`."""
-    root = _interface_file(type_name, ".msg").read_text()
-    seen, order, stack = {type_name}, [], list(reversed(_field_types(type_name.split("/")[0], root)))
-    while stack:
-        dependency = stack.pop()
-        if dependency in seen:
-            continue
-        seen.add(dependency)
-        text = _interface_file(dependency, ".msg").read_text()
-        order.append((dependency, text))
-        stack.extend(reversed(_field_types(dependency.split("/")[0], text)))
-    parts = [root.strip()] + [f"{SEPARATOR}\nMSG: {name}\n{text.strip()}" for name, text in order]
+    (_, root), *dependencies = _definitions(type_name)
+    parts = [root.strip()] + [f"{SEPARATOR}\nMSG: {name}\n{text.strip()}" for name, text in dependencies]
     return "\n".join(parts) + "\n"
 
 
