@@ -60,6 +60,8 @@ setup(
             "cito-plan = cito_ros.cli.plan:main",
             "cito-planner-node = cito_ros.ros.node:main",
             "cito-demo = cito_ros.cli.demo:main",
+            "cito-executor-node = cito_ros.ros.executor_node:main",
+            "cito-sim-robot = cito_ros.ros.sim_robot:main",
             "planner_node = cito_ros.ros.node:main",
         ],
     },

@@ -7,8 +7,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "cito_ros"
-# bottom to top; ros and studies stand side by side on the planner and do not import each other
-RANK = {"settings": 0, "model": 1, "planner": 2, "ros": 3, "studies": 3, "cli": 4}
+# bottom to top; ros and studies stand side by side on the execution layer and do not import each other
+RANK = {"settings": 0, "model": 1, "planner": 2, "execution": 3, "ros": 4, "studies": 4, "cli": 5}
 ROS_MODULES = ("rclpy", "cito_msgs", "builtin_interfaces", "geometry_msgs", "nav_msgs", "sensor_msgs", "std_msgs",
                "trajectory_msgs", "visualization_msgs", "action_msgs", "rcl_interfaces")
 MODULES = sorted(p for p in PACKAGE.rglob("*.py") if p.parent != PACKAGE)

@@ -12,6 +12,7 @@
     cito-bench roughness [--scenes S ...] [--plans] [--json]   how far a push's outcome jumps under tiny changes
     cito-bench push-limits [--heights H ...] [--step M] [--json]   where a push that holds its height can leave the cube
     cito-bench round-trip [--n 20] [--seed S] [--json]   the node's answer time beyond the solve, and its bags
+    cito-bench closed-loop [--n 30] [--seed S] [--out DIR] [--ros]   open and closed loop in mismatched worlds
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -166,6 +167,14 @@ def main(argv: list[str] | None = None) -> int:
     trip.add_argument("--n", type=positive_int, default=20, help="seeded short pushes, each as a call and as a goal")
     trip.add_argument("--seed", type=int, default=0)
     trip.add_argument("--json", action="store_true", help="print one JSON object")
+    closed = commands.add_parser("closed-loop", help="pushes open and closed loop in worlds that are not the model")
+    closed.add_argument("--n", type=positive_int, default=30, help="targets goals (each in every world, both ways)")
+    closed.add_argument("--seed", type=int, default=0)
+    closed.add_argument("--contact-model", default="vscm", choices=asks.MODELS)
+    closed.add_argument("--out", type=Path, default=Path("out/closed_loop"),
+                        help="reports, and each finished episode as it arrives (a rerun skips those)")
+    closed.add_argument("--json", action="store_true", help="print the summary and every episode")
+    add_sweep_options(closed)
     hashes = commands.add_parser("plan-hashes", help="the paper's cases and the first targets goals, by plan hash")
     hashes.add_argument("--goals", type=int, default=10, help="targets goals (seed 0), each with every model")
     hashes.add_argument("--out", type=Path, default=None, help="write the hashes to this JSON file")
@@ -293,6 +302,20 @@ def main(argv: list[str] | None = None) -> int:
         result = round_trip.round_trip_benchmark(args.n, args.seed, progress=lambda done, _: advance(bar, done))
         bar.close()
         print(json.dumps(result) if args.json else round_trip.report_text(result))
+    elif args.command == "closed-loop":
+        from cito_ros.settings import load_settings
+        from cito_ros.studies import closed_loop, targets as targets_module
+
+        settings = load_settings()
+        goals, _ = targets_module.draw_goals(args.n, args.seed, settings)
+        jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers))
+        records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
+                                  out=args.out / f"seed{args.seed}", label="closed loop")
+        summary = closed_loop.report(records)
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "closed_loop.md").write_text(closed_loop.markdown(summary))
+        (args.out / "closed_loop.json").write_text(json.dumps({"summary": summary, "episodes": records}, indent=1))
+        print(json.dumps({"summary": summary, "episodes": records}) if args.json else closed_loop.markdown(summary))
     elif args.command == "plan-hashes":
         hashes = paper.plan_hashes(args.goals, workers=args.workers, address=args.address)
         text = json.dumps(hashes, indent=1, sort_keys=True)

@@ -29,14 +29,12 @@ import concurrent.futures
 import dataclasses
 import itertools
 import math
-import signal
 import sys
 import threading
 import time
 from pathlib import Path
 from typing import Callable
 
-import rclpy
 from cito_msgs.action import PlanPush as PlanPushAction
 from cito_msgs.msg import ContactForce, PlanRequest, PlanResult as PlanResultMsg, SolverProgress
 from cito_msgs.srv import PlanPush
@@ -45,11 +43,9 @@ from nav_msgs.msg import Path as PathMsg
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -62,8 +58,8 @@ from cito_ros.planner.results import IterationLog
 from cito_ros.ros import messages as ros_messages, parameters as ros_parameters
 from cito_ros.ros.bag import TopicQos
 from cito_ros.ros.markers import SceneMarkers, joint_states
+from cito_ros.ros.process import run
 from cito_ros.ros.recorder import Recorder, Recording
-from cito_ros.settings.paths import config_path
 
 NAME = "/cito/plan_push"  # the action's and the service's
 STEP_DEPTH = 1000  # a plan's per-step messages (321 at the default horizon) fit in one history
@@ -318,37 +314,7 @@ class PlannerNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv if argv is None else argv)
-    if "--params-file" not in args:
-        # the package's parameters first, so that the caller's -p overrides come after them
-        default = ["--params-file", str(config_path("planner.yaml"))]
-        if "--ros-args" in args:
-            at = args.index("--ros-args") + 1
-            args[at:at] = default
-        else:
-            args += ["--ros-args", *default]
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
-    try:
-        node = PlannerNode()
-    except (ValueError, KeyError) as error:
-        print(f"cito-planner-node: bad parameters: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    finally:
-        node.get_logger().info("shutting down")
-        node.stop(timeout_s=4.0)
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run(PlannerNode, "cito-planner-node", argv)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from cito_ros.settings.contact import (
                                        Weights,
                                        WeightsSettings,
 )
-from cito_ros.settings.execution import LimitSettings, TrackingSettings
+from cito_ros.settings.execution import ExecutorSettings, LimitSettings, TrackingSettings
 from cito_ros.settings.planner import (
                                        PLANNER_FILE,
                                        HorizonSettings,
@@ -44,7 +44,7 @@ from cito_ros.settings.stages import (
 )
 
 __all__ = ["CONTACT_MODEL_NAMES", "CccmSettings", "ContactModelsSettings", "ScmSettings", "VscmSettings", "Weights",
-           "WeightsSettings", "LimitSettings", "TrackingSettings", "PLANNER_FILE", "HorizonSettings", "NodeSettings",
+           "WeightsSettings", "ExecutorSettings", "LimitSettings", "TrackingSettings", "PLANNER_FILE", "HorizonSettings", "NodeSettings",
            "Settings", "TaskSettings", "load_parameters", "load_settings", "DEFAULT_SCENE", "ObjectConfig",
            "SceneConfig", "DerivativeSettings", "SolverSettings", "IPOPT_CURVATURES", "DiscoverySettings",
            "PhysicalStage", "PhysicalStages", "ScriptedSettings", "ScriptVariants", "StagesSettings"]

@@ -37,3 +37,28 @@ class TrackingSettings:
     def check(self, path: str) -> None:
         if len(self.kp) != 7 or len(self.kd) != 7:
             raise ValueError(f"{path}.kp and {path}.kd must have one gain per arm joint (7)")
+
+
+@dataclass(frozen=True)
+class ExecutorSettings:
+    """The closed-loop executor (cito_ros.execution.executor): feedback, replanning, and when it stops."""
+
+    replan_budget_s: float = setting("a replan stops after the iteration that passes this much time (s)",
+                                     positive=True)
+    replan_iterations: int = setting("iLQR iterations of a replan at most", minimum=1)
+    min_replan_knots: int = setting("no replan with fewer knots of the push left", minimum=1)
+    feedback_regularization: float = setting("mu of the backward pass a plan's feedback gains come from, where "
+                                             "no iLQR step gave them", positive=True)
+    stale_after_s: float = setting("measurements older than this stop the execution, the arm held (s)",
+                                   positive=True)
+    rest_speed_m_s: float = setting("the cube's estimated speed below which it counts as at rest (m/s)",
+                                    positive=True)
+    settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
+                              minimum=0.0)
+    max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
+    servo_gain_scale: float = setting("the executor's joint servo gains: this times tracking.kp and kd (a servo behind "
+                                      "a measurement and command delay of milliseconds needs far lower gains than "
+                                      "the planner's zero-delay controller)", positive=True)
+    plan_time_limit_s: float = setting("the planner's time for one push (the best plan by then is taken) (s)",
+                                       positive=True)
+    time_limit_s: float = setting("an execution's wall-clock limit where the goal gives none (s)", positive=True)

@@ -8,7 +8,7 @@ from typing import Any, Mapping
 import yaml
 
 from cito_ros.settings.contact import CONTACT_MODEL_NAMES, ContactModelsSettings, WeightsSettings
-from cito_ros.settings.execution import LimitSettings, TrackingSettings
+from cito_ros.settings.execution import ExecutorSettings, LimitSettings, TrackingSettings
 from cito_ros.settings.paths import config_path
 from cito_ros.settings.scene import SceneConfig
 from cito_ros.settings.solver import DerivativeSettings, SolverSettings
@@ -75,6 +75,7 @@ class Settings:
     stages: StagesSettings = setting("the physical pipeline's stages")
     limits: LimitSettings = setting("the arm's limits in the physical pipeline")
     tracking: TrackingSettings = setting("the joint trajectory controller a plan is also executed with")
+    executor: ExecutorSettings = setting("the closed-loop executor")
     solver: SolverSettings = setting("solver")
 
     def check(self, path: str) -> None:

@@ -42,6 +42,7 @@ class IlqrSolver:
         self.step_lengths = np.asarray(options["step_lengths"], dtype=float)
         self.accept_ratio = options["accept_ratio"]
         self.tolerance = options["tolerance"]
+        self.gains: np.ndarray | None = None  # (N, w, nx) of the last backward pass whose step was kept
 
     def solve(self, problem, start: np.ndarray, lower: np.ndarray, upper: np.ndarray,
               monitor: IterationMonitor) -> StageOutcome:
@@ -76,7 +77,7 @@ class IlqrSolver:
                 trial, alpha = trials[best], self.step_lengths[best]
                 if trial.finite and trial.cost < point.cost and \
                         (point.cost - trial.cost) / (-expected * alpha) >= self.accept_ratio:
-                    z, point, accepted = trial.z, trial, True
+                    z, point, accepted, self.gains = trial.z, trial, True, K
                 if accepted:
                     mu = self._after_step(mu, alpha)
                 else:
@@ -100,6 +101,21 @@ class IlqrSolver:
         if alpha >= self.step_lengths.max():
             return mu / self.mu_factor if mu / self.mu_factor >= self.mu_min else 0.0
         return mu
+
+
+def feedback_gains(problem, z: np.ndarray, mu: float) -> np.ndarray:
+    """The gains K (N, w, nx) of one backward pass at z (regularized by mu on the scaled decisions): the
+    time-varying feedback on the knot-start state deviation that keeps a rollout near z's; zero for a decision
+    at its bound. For a plan that was not reached by a kept iLQR step."""
+    N, w = problem.n_knots, problem.width
+    expansion = problem.knot_expansion(z)
+    while mu <= 1e12:
+        gains = _backward(expansion, np.asarray(z).reshape(N, w), problem.lower.reshape(N, w),
+                          problem.upper.reshape(N, w), problem.scale.reshape(N, w), mu)
+        if gains is not None:
+            return gains[1]
+        mu = max(10.0 * mu, 1e-6)
+    return np.zeros((N, w, 2 * problem.scene.model.nv))
 
 
 def _backward(expansion, decisions: np.ndarray, lower: np.ndarray, upper: np.ndarray, scale: np.ndarray,

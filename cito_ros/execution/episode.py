@@ -1,0 +1,143 @@
+"""One push executed on a simulated robot, in this process, open loop or closed loop, judged on the world's truth.
+
+The world and the controller run in lock step, one world timestep at a time, on the world's clock. Closed loop,
+the executor's planning runs in line whenever it has a job (`Executor.work`): the world stands still while it
+computes, and the result takes effect once the world's clock has moved on by the compute time, the arm driven
+by the running policy meanwhile; so every replan costs on the robot's clock what it cost here. Open loop, the
+plan is made from where the planner was told the cube is, and a joint trajectory controller sends the plan's
+efforts as feed-forward plus a PD on its positions and velocities, then holds the last point.
+
+Either way the arm is then held until the cube has come to rest (the world's truth, at most REST_WAIT_S), and
+the push is judged there: the cube within 2 cm and 0.15 rad (and 0.1 rad) of the goal.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+from cito_ros.execution.estimator import yaw_of
+from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
+from cito_ros.execution.policy import bias_torques
+from cito_ros.execution.world import SimulatedWorld
+from cito_ros.planner.plan import plan_push
+from cito_ros.settings import Settings
+
+REST_WAIT_S = 3.0        # the longest the arm is held after an execution for the cube to come to rest
+REST_SPEED_M_S = 0.005   # at rest: no point of the cube faster than this (the world's truth)
+TIGHT_YAW_RAD = 0.1      # the stricter orientation tolerance reported beside the success one
+
+
+@dataclass(frozen=True)
+class Episode:
+    mode: str                        # "open_loop" or "closed_loop"
+    success: bool                    # at rest within task.success_position_error_m and success_orientation_error_rad
+    success_tight: bool              # and within TIGHT_YAW_RAD
+    position_error_m: float          # the world's truth, at rest
+    orientation_error_rad: float
+    at_rest: bool
+    max_joint_speed_ratio: float     # the world's arm over the whole run
+    duration_s: float                # on the world's clock, to the end of the execution
+    ending: str                      # the executor's (closed loop), "executed" (open loop), or why nothing ran
+    message: str
+    pushes: int
+    replans: int
+    replan_rate_hz: float            # 1 / the median replan compute time
+    replan_compute_s: float          # median
+    plan_compute_s: float            # the first plan's
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld) -> Episode:
+    executor = Executor(settings, goal)
+    speeds = [0.0]
+
+    def deliver() -> None:
+        executor.on_joints(world.joints())
+        for reading in world.camera():
+            executor.on_pose(reading, world.time_s)
+
+    def step(torques: np.ndarray) -> None:
+        world.step(torques)
+        speeds.append(world.joint_speed_ratio())
+        deliver()
+
+    deliver()
+    while not executor.estimator.has_pose:  # the arm held by its bias forces until the camera's first pose
+        joints = world.joints()
+        step(bias_torques(executor.model.scene, executor._data, joints.q, joints.qdot))
+    plan_compute_s = math.nan
+    while executor.phase is not Phase.DONE:
+        work = executor.work(world.time_s)
+        if work is not None and work.kind == "plan" and math.isnan(plan_compute_s):
+            plan_compute_s = work.compute_s
+        step(executor.command(world.time_s))
+    duration_s = world.time_s
+    position, orientation, at_rest = _settle(world, lambda: step(executor.command(world.time_s)), goal)
+    seconds = executor.replan_seconds
+    return _episode("closed_loop", settings, position, orientation, at_rest, max(speeds), duration_s,
+                    executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
+                    float(np.median(seconds)) if seconds else math.nan, plan_compute_s)
+
+
+def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
+                  told_pose: tuple[tuple[float, float], float]) -> Episode:
+    """The plan from where the planner was told the cube is, by a joint trajectory controller with feed-forward."""
+    start = world.joints()
+    began = time.perf_counter()
+    try:
+        result = plan_push(goal.contact_model, start_q=start.q, target_position_m=np.array(goal.target_position_m),
+                           target_yaw_rad=goal.target_yaw_rad, scene=goal.scene, object_pose=told_pose,
+                           settings=settings)
+    except ValueError as error:
+        return _episode("open_loop", settings, math.nan, math.nan, False, 0.0, 0.0, Ending.INVALID_REQUEST.value,
+                        str(error), 0, 0, math.nan, math.nan, math.nan)
+    plan_compute_s = time.perf_counter() - began
+    trajectory, gains = result.trajectory, settings.tracking
+    kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
+    data = mujoco.MjData(world.scene.model)  # the controller's model of the arm: the same arm
+    speeds = [0.0]
+
+    def step(torques: np.ndarray) -> None:
+        world.step(torques)
+        speeds.append(world.joint_speed_ratio())
+
+    for index in range(len(trajectory.torque_Nm)):
+        joints = world.joints()
+        step(trajectory.torque_Nm[index] + kp * (trajectory.q[index] - joints.q)
+             + kd * (trajectory.qdot[index] - joints.qdot))
+    duration_s = world.time_s
+
+    def hold() -> None:  # the controller past its last point: the last point held, the arm's bias added
+        joints = world.joints()
+        step(kp * (trajectory.q[-1] - joints.q) - kd * joints.qdot
+             + bias_torques(world.scene, data, joints.q, joints.qdot))
+
+    position, orientation, at_rest = _settle(world, hold, goal)
+    return _episode("open_loop", settings, position, orientation, at_rest, max(speeds), duration_s, "executed",
+                    result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s)
+
+
+def _episode(mode: str, settings: Settings, position: float, orientation: float, at_rest: bool, *rest) -> Episode:
+    task = settings.task
+    near = at_rest and position < task.success_position_error_m
+    return Episode(mode, near and orientation < task.success_orientation_error_rad,
+                   near and orientation < TIGHT_YAW_RAD, position, orientation, at_rest, *rest)
+
+
+def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal) -> tuple[float, float, bool]:
+    """hold() step by step until the cube is at rest in the world (at most REST_WAIT_S); its true errors there."""
+    waited = 0.0
+    while world.object_speed_m_s() >= REST_SPEED_M_S and waited < REST_WAIT_S:
+        hold()
+        waited += world.timestep_s
+    position, quaternion = world.true_object_pose()
+    target = goal.target_position_m
+    return float(math.hypot(position[0] - target[0], position[1] - target[1])), \
+        abs(math.remainder(yaw_of(quaternion) - goal.target_yaw_rad, 2 * math.pi)), \
+        world.object_speed_m_s() < REST_SPEED_M_S

@@ -1,0 +1,317 @@
+"""The closed-loop executor: a push planned from the measured state, executed by its feedback policy, replanned
+from the measured state while it runs, and pushed again from where the cube comes to rest if it is not there.
+
+ROS-free and clock-agnostic: the caller feeds measurements (`on_joints`, `on_pose`) and asks for the joint
+torques to send at every control step (`command`, never blocking). The planning (the first plan, the MPC
+replans, a new push) comes as a `Job` (`job`), picklable, whose outcome `compute` gives wherever there is the
+time: in another process beside the control loop on a robot, in line in a simulation (`work`). A plan computed
+from the state at time t takes effect at t plus its compute time on the robot's clock, never earlier: `accept`
+takes it with that time, and `command` swaps it in then.
+
+Phases: `planning` (the arm held while a push is planned), `pushing` (the policy, replanned), `settling` (the arm
+held at the push's end until the cube has come to rest; then the push is judged by the camera: at the goal,
+done; else, while pushes and time are left, a new push is planned from there), `done`. Measurements older than
+executor.stale_after_s, a cancel, the time limit or a push that cannot be planned end the execution with the arm
+held where it is.
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cito_ros.execution.estimator import StateEstimator
+from cito_ros.execution.mpc import PushModel
+from cito_ros.execution.policy import Policy, bias_torques
+from cito_ros.execution.world import JointReading, PoseReading
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.results import Status
+from cito_ros.settings import SceneConfig, Settings
+
+SPEED_GUARD = 0.95  # of each joint's velocity limit: beyond it the executor brakes the joint
+
+
+class Phase(str, enum.Enum):
+    PLANNING = "planning"
+    PUSHING = "pushing"
+    SETTLING = "settling"
+    DONE = "done"
+
+
+class Ending(enum.Enum):
+    """How an execution ended (the ExecutePush result's status)."""
+
+    SUCCEEDED = "succeeded"
+    INVALID_REQUEST = "invalid_request"          # a push could not be planned from where things are
+    TASK_NOT_ACHIEVED = "task_not_achieved"      # the pushes are spent, the cube is not at the goal
+    CANCELLED = "cancelled"
+    TIME_LIMIT = "time_limit"
+    STALE_MEASUREMENTS = "stale_measurements"
+    NUMERICAL_ERROR = "numerical_error"
+
+
+@dataclass(frozen=True)
+class ExecuteGoal:
+    target_position_m: tuple[float, float]
+    target_yaw_rad: float = 0.0
+    contact_model: str = "vscm"
+    scene: str | None = None                # a scene in config/scenes; None: the settings' scene
+    time_limit_s: float = 0.0               # 0: executor.time_limit_s
+
+
+@dataclass(frozen=True)
+class Work:
+    """A plan ready to take effect at `effective_s` on the robot's clock, and what it cost."""
+
+    policy: Policy
+    effective_s: float
+    compute_s: float
+    kind: str                               # "plan" or "replan"
+
+
+class Executor:
+    """See the module docstring."""
+
+    def __init__(self, settings: Settings, goal: ExecuteGoal):
+        self.settings, self.goal = settings, goal
+        self.time_limit_s = goal.time_limit_s or settings.executor.time_limit_s
+        self.model = push_model(settings, goal)  # the goal checked here (a ValueError for a bad one)
+        scene = self.model.scene
+        self.estimator = StateEstimator(scene, self.model.resting_state)
+        self._data = mujoco.MjData(scene.model)
+        self._lock = threading.Lock()
+        self.phase = Phase.PLANNING
+        self.ending: Ending | None = None
+        self.message = ""
+        self.policy: Policy | None = None
+        self._pending: Work | None = None
+        self._push_end_s = math.nan
+        self._hold_q: np.ndarray | None = None
+        self._settle_since_s = math.nan
+        self._joints: JointReading | None = None
+        self._pose_arrival_s = -math.inf
+        self._joints_arrival_s = -math.inf
+        self.started_s: float | None = None
+        self.pushes = 0
+        self.replan_seconds: list[float] = []  # every replan's compute time, taken or not
+        self.replans_taken = 0                 # the replans that improved on the running plan and took its place
+        self._planner_free_s = -math.inf
+
+    # ------------------------------------------------------------------ measurements
+
+    def on_joints(self, reading: JointReading, arrival_s: float | None = None) -> None:
+        """A joint state, which arrived at arrival_s on the robot's clock (default: its stamp)."""
+        self._joints = reading
+        self._joints_arrival_s = reading.stamp_s if arrival_s is None else arrival_s
+        if self.started_s is None:
+            self.started_s = reading.stamp_s
+        if self._hold_q is None:
+            self._hold_q = reading.q.copy()
+
+    def on_pose(self, reading: PoseReading, arrival_s: float) -> None:
+        self.estimator.add_pose(reading)
+        self._pose_arrival_s = arrival_s
+
+    # ------------------------------------------------------------------ control
+
+    def command(self, now_s: float) -> np.ndarray:
+        """The total joint torques to send now (the policy's u plus the arm's bias forces, or a hold)."""
+        joints = self._joints
+        if joints is None:
+            raise ValueError("no joint state yet")
+        with self._lock:
+            if self.phase is not Phase.DONE:
+                self._advance(now_s)
+            if self.phase is Phase.PUSHING:
+                state = self.estimator.state(joints, now_s)
+                u = self.policy.command(now_s, state, self.model.scene, self._data)
+            else:
+                kp, kd = self.model.servo_gains
+                u = kp * (self._hold_q - joints.q) - kd * joints.qdot
+            u = self._within_speed_limits(u, joints.qdot) + \
+                bias_torques(self.model.scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
+        limit = self.model.scene.torque_limit
+        return np.clip(u, -limit, limit)
+
+    def _within_speed_limits(self, u: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+        """u with a brake on every joint faster than SPEED_GUARD of its velocity limit: a damping of ten times
+        the joint's servo gain on the excess speed, as a robot's joint limiter would (a new plan's first steps
+        can kick a joint beyond it)."""
+        limit = SPEED_GUARD * self.model.scene.velocity_limit
+        excess = qdot - np.clip(qdot, -limit, limit)
+        return u - 10.0 * self.model.servo_gains[1] * excess
+
+    def _advance(self, now_s: float) -> None:
+        joints = self._joints
+        stale = self.settings.executor.stale_after_s  # measurements that stopped arriving, whatever their stamps
+        if now_s - self._joints_arrival_s > stale or now_s - self._pose_arrival_s > stale:
+            what = "joint states" if now_s - self._joints_arrival_s > stale else "cube poses"
+            return self._end(Ending.STALE_MEASUREMENTS, f"no {what} for {self.settings.executor.stale_after_s:g} s: "
+                                                        f"the arm is held where it is", joints.q)
+        if now_s - self.started_s > self.time_limit_s:
+            return self._end(Ending.TIME_LIMIT, f"the {self.time_limit_s:g} s time limit ran out", joints.q)
+        if self._pending is not None and now_s >= self._pending.effective_s:
+            work, self._pending = self._pending, None
+            self.policy = work.policy
+            if work.kind == "plan":
+                self.phase, self._push_end_s = Phase.PUSHING, work.policy.end_s
+        if self.phase is Phase.PUSHING and now_s >= self._push_end_s:  # held where it is: no jump to a reference
+            self.phase, self._hold_q, self._settle_since_s = Phase.SETTLING, joints.q.copy(), now_s
+        if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
+                self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
+            position, orientation = self.errors(now_s)
+            task = self.settings.task
+            if position < task.success_position_error_m and orientation < task.success_orientation_error_rad:
+                return self._end(Ending.SUCCEEDED, f"the cube is {100 * position:.2f} cm and {orientation:.3f} rad "
+                                                   f"from the goal after {self.pushes} push(es)", None)
+            if self.pushes >= self.settings.executor.max_pushes:
+                return self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
+                                                           f"{100 * position:.2f} cm and {orientation:.3f} rad from "
+                                                           f"the goal", None)
+            self.phase = Phase.PLANNING  # another push, from where the cube rests
+
+    def _end(self, ending: Ending, message: str, hold_q: np.ndarray | None) -> None:
+        self.phase, self.ending, self.message, self._pending = Phase.DONE, ending, message, None
+        if hold_q is not None:
+            self._hold_q = hold_q.copy()
+
+    def cancel(self) -> None:
+        with self._lock:
+            if self.phase is not Phase.DONE:
+                self._end(Ending.CANCELLED, "cancelled: the arm is held where it is",
+                          None if self._joints is None else self._joints.q)
+
+    def errors(self, now_s: float) -> tuple[float, float]:
+        """The cube's position and yaw error against the goal, as the camera sees it now."""
+        (x, y), yaw = self.estimator.object_pose(now_s)
+        target = self.goal.target_position_m
+        return float(math.hypot(x - target[0], y - target[1])), \
+            abs(math.remainder(yaw - self.goal.target_yaw_rad, 2 * math.pi))
+
+    # ------------------------------------------------------------------ planning
+
+    def job(self, now_s: float) -> Job | None:
+        """What there is to plan now, from the state measured at now_s: a push, or a replan with knots of the push
+        left (None: nothing)."""
+        with self._lock:
+            if self.phase is Phase.DONE or self._pending is not None or self._joints is None or \
+                    not self.estimator.has_pose or now_s < self._planner_free_s:
+                return None
+            if self.phase is Phase.PUSHING and now_s + self.settings.executor.min_replan_knots * \
+                    self.model.control_period_s >= self._push_end_s:
+                return None
+            if self.phase not in (Phase.PLANNING, Phase.PUSHING):
+                return None
+            return Job("plan" if self.phase is Phase.PLANNING else "replan", now_s,
+                       self.estimator.state(self._joints, now_s), self._joints.q.copy(),
+                       self.estimator.object_pose(now_s), self.time_limit_s - (now_s - self.started_s),
+                       self.policy, self._push_end_s)
+
+    def accept(self, job: Job, outcome: Policy | Failure | None, elapsed_s: float) -> Work | None:
+        """Take a job's outcome, computed in elapsed_s (on the robot's clock, from job.now_s): a plan that takes
+        effect at job.now_s + elapsed_s, or the failure that ends the execution."""
+        with self._lock:
+            self._planner_free_s = job.now_s + elapsed_s  # the planner was busy with it until then
+            if job.kind == "replan":
+                self.replan_seconds.append(elapsed_s)
+            expected = Phase.PLANNING if job.kind == "plan" else Phase.PUSHING
+            if self.phase is not expected:
+                return None
+            if isinstance(outcome, Failure):
+                self._end(outcome.ending, outcome.message, None if self._joints is None else self._joints.q)
+                return None
+            if outcome is None:
+                return None
+            effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start
+            if job.kind == "plan":  # a fresh push starts from rest when it is ready: its time 0 is then
+                outcome, self.pushes = dataclasses.replace(outcome, start_s=effective), self.pushes + 1
+            else:
+                self.replans_taken += 1
+            self._pending = Work(outcome, effective, elapsed_s, job.kind)
+            return self._pending
+
+    def work(self, now_s: float) -> Work | None:
+        """job, compute and accept in line (blocking): for a caller whose clock stands still while it computes."""
+        job = self.job(now_s)
+        if job is None:
+            return None
+        began = time.perf_counter()
+        outcome = compute(self.settings, self.goal, job)
+        return self.accept(job, outcome, time.perf_counter() - began)
+
+    @property
+    def replans(self) -> int:
+        return len(self.replan_seconds)
+
+    @property
+    def replan_rate_hz(self) -> float:
+        """Replans a second while replanning back to back: 1 / the median compute time of one (NaN: none)."""
+        return 1.0 / float(np.median(self.replan_seconds)) if self.replan_seconds else math.nan
+
+
+@dataclass(frozen=True)
+class Job:
+    """What to plan (picklable: it may be computed in another process)."""
+
+    kind: str                                # "plan" (a push from rest) or "replan"
+    now_s: float                             # the robot's time of the state
+    state: np.ndarray                        # the estimated model state then
+    q: np.ndarray                            # the arm's joints then
+    object_pose: tuple[np.ndarray, float]    # the cube's estimated (x, y) and yaw then
+    time_left_s: float
+    running: Policy | None                   # replan: the policy that runs (its torques warm-start the replan)
+    push_end_s: float                        # replan: where the push ends
+
+
+@dataclass(frozen=True)
+class Failure:
+    ending: Ending
+    message: str
+
+
+_MODELS: dict[ExecuteGoal, tuple[Settings, PushModel]] = {}  # per process: the model of each goal, built once
+
+
+def push_model(settings: Settings, goal: ExecuteGoal) -> PushModel:
+    """The planner's model of a goal's pushes, built once per process and settings."""
+    if goal not in _MODELS or _MODELS[goal][0] != settings:
+        _MODELS.clear()  # one execution at a time: the last goal's model is the only one kept
+        config = settings.scene if goal.scene is None else SceneConfig.load(goal.scene)
+        _MODELS[goal] = (settings, PushModel(settings, goal.contact_model, config,
+                                             np.asarray(goal.target_position_m, dtype=float), goal.target_yaw_rad))
+    return _MODELS[goal][1]
+
+
+def warm_up(settings: Settings) -> None:
+    """What a planning process pays for once: the imports and the push reach of the configured scene."""
+    build_problem(settings, PushRequest(settings.node.default_contact_model))
+
+
+def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
+    """A job's outcome (blocking; in this process or another): a push planned from rest (plan_push from the
+    measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there."""
+    model = push_model(settings, goal)
+    if job.kind == "replan":
+        return model.replan(job.now_s, job.state, job.running, settings.executor.replan_budget_s)
+    (x, y), yaw = job.object_pose
+    request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=np.array(goal.target_position_m),
+                          target_yaw_rad=goal.target_yaw_rad, scene=goal.scene, object_pose=((x, y), yaw))
+    try:
+        result = plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
+                           target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
+                           settings=settings.with_overrides({"solver.time_limit_s": max(min(
+                               job.time_left_s, settings.executor.plan_time_limit_s), 1.0)}))
+        start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
+                              request).initial_state
+    except ValueError as error:
+        return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
+    if result.status is Status.NUMERICAL_ERROR:
+        return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
+    return model.policy(job.now_s, start, result.knot_torques_Nm)

@@ -1,0 +1,129 @@
+"""Receding-horizon replanning from the measured state (MPC), and the policy of a plan.
+
+`PushModel` is the planner's model of one push for the executor: the scene with the cube where it was
+measured when the push was planned, the task, and the cost the replans minimize (the physical pipeline's
+stage without the virtual force that every start runs after its first: its contact, joint-limit and
+object-velocity terms). `policy` turns knot torques into a `Policy`: their rollout in the model from a state
+is the reference, and the feedback gains come from iLQR's backward pass there. `replan` is one MPC step: the
+push from the estimated state to the end of the push, in whole knots, warm-started from the running policy
+shifted in time, for a few iLQR iterations within a time budget; its gains are those of the last backward
+pass whose step was kept.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from cito_ros.execution.policy import Policy
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import Scene, start_configuration
+from cito_ros.model.simulator import Simulator
+from cito_ros.planner.builder import make_task
+from cito_ros.planner.problem import PushProblem
+from cito_ros.planner.solvers.base import IterationMonitor
+from cito_ros.planner.solvers.ilqr import IlqrSolver, feedback_gains
+from cito_ros.planner.stages import stage_cost, touch_profile
+from cito_ros.settings import SceneConfig, Settings
+
+REPLAN_STAGE = 1  # the physical stage whose weights the replans take: the one every start runs after its first
+
+
+class PushModel:
+    """The planner's model of one push (see the module docstring)."""
+
+    def __init__(self, settings: Settings, contact_model_name: str, config: SceneConfig, target_position_m,
+                 target_yaw_rad: float):
+        self.settings = settings
+        self.scene = Scene(contact_model(contact_model_name, settings.contact_models), config)
+        # the cube at rest in the model, the arm anywhere: the cube's resting height, and the goal checked there
+        self.resting_state = self.scene.initial_state(start_configuration(settings.beta))
+        self.task = make_task(self.scene, self.resting_state, target_position_m, target_yaw_rad, settings)
+        self.control_period_s = settings.control_period_s
+        scale = settings.executor.servo_gain_scale
+        self.servo_gains = (scale * np.asarray(settings.tracking.kp), scale * np.asarray(settings.tracking.kd))
+        self._simulators: dict[int, Simulator] = {}
+
+    def problem(self, state: np.ndarray, knots: int, torques: np.ndarray) -> PushProblem:
+        """The push from `state` over `knots` knots without the virtual force, its contact term from where
+        `torques` first touch the cube."""
+        if knots not in self._simulators:
+            self._simulators[knots] = Simulator(self.scene, knots * self.control_period_s, self.control_period_s,
+                                                nthread=self.settings.gradient.threads)
+        simulator = self._simulators[knots]
+        settings, weights = self.settings, getattr(self.settings.weights, self.scene.contact_model.name)
+        stage = list(settings.stages.physical)[REPLAN_STAGE]
+        bare = PushProblem(simulator, state, self.task, stage_cost(settings, weights, False, 0.0, None, 0.0, 0.0),
+                           settings.gradient, settings.task.position_error_scale_min_m)
+        touch = touch_profile(bare, bare.with_torques(torques), settings.stages.touch_force_N)
+        cost = stage_cost(settings, weights, False, stage.contact_weight, touch, stage.joint_speed_weight,
+                          stage.joint_position_weight)
+        return PushProblem(simulator, state, self.task, cost, settings.gradient,
+                           settings.task.position_error_scale_min_m)
+
+    def policy(self, start_s: float, state: np.ndarray, torques: np.ndarray,
+               gains: np.ndarray | None = None, problem: PushProblem | None = None) -> Policy:
+        """The policy of knot torques from `state` at start_s: their rollout is the reference. Its gains on the
+        cube's state are the backward pass's (given, or from a backward pass at the torques); on the arm's
+        joints, the executor's servo PD (servo_gains): the backward pass's own arm gains
+        are soft where the cost does not care where the arm is, and a heavier or grippier cube than the model's
+        then pushes the arm off its path."""
+        problem = self.problem(state, len(torques), torques) if problem is None else problem
+        z = problem.with_torques(torques)
+        evaluation = problem.evaluate(z)
+        if gains is None:
+            gains = feedback_gains(problem, z, self.settings.executor.feedback_regularization)
+        gains = gains[:, :7, :].copy()
+        nv, arm = self.scene.model.nv, self.scene.arm_dof_adr
+        gains[:, :, arm] = 0.0
+        gains[:, :, nv + arm] = 0.0
+        gains[:, np.arange(7), arm] = -self.servo_gains[0]
+        gains[:, np.arange(7), nv + arm] = -self.servo_gains[1]
+        return Policy(start_s, self.control_period_s, problem.simulator.timestep_s, np.array(torques, dtype=float),
+                      gains, np.vstack([state[None], evaluation.states]), evaluation.position_error_m)
+
+    def predict(self, state: np.ndarray, running: Policy, from_s: float, steps: int) -> np.ndarray:
+        """The model's state `steps` simulation steps after `state` (at from_s) under the running policy's
+        feed-forward torques: where the arm and the cube will be when a plan now computed takes effect."""
+        simulator = next(iter(self._simulators.values()), None) or Simulator(
+            self.scene, self.control_period_s, self.control_period_s, nthread=1)
+        controls = np.zeros((steps, self.scene.model.nu))
+        times = from_s + (np.arange(steps) + 0.5) * simulator.timestep_s
+        controls[:, self.scene.motor_ids] = running.torques_at(times)
+        states, _, _ = simulator.rollout_batch(state[None], controls[None])
+        predicted = states[0, -1].copy()
+        predicted[0] = 0.0
+        return predicted
+
+    def replan(self, measured_s: float, state: np.ndarray, running: Policy, lead_s: float) -> Policy | None:
+        """One MPC step on the running policy's knots: from `state` measured at measured_s, predicted to the
+        first of its knots at least lead_s ahead (a plan now computed cannot take effect sooner), over its
+        remaining knots, warm-started from its torques there, one iLQR iteration or as many as the budget allows.
+        None, and the running policy goes on, where fewer than min_replan_knots are left or where the replan does
+        not improve on the running plan from the same state: a lower cost, no larger error, within the joint
+        speed limits (a replan from a perturbed state can otherwise trade the goal for the cost's other terms)."""
+        tc, dt = self.control_period_s, self.scene.model.opt.timestep
+        knot = math.ceil((measured_s + lead_s - running.start_s) / tc - 1e-9)
+        knots = len(running.torques_Nm) - knot
+        if knots < self.settings.executor.min_replan_knots:
+            return None
+        start_s = running.start_s + knot * tc
+        state = self.predict(state, running, measured_s, max(int(round((start_s - measured_s) / dt)), 0))
+        guess = running.torques_Nm[knot:]
+        problem = self.problem(state, knots, guess)
+        executor = self.settings.executor
+        solver_settings = dataclasses.replace(self.settings.solver, max_iter=executor.replan_iterations,
+                                              time_limit_s=executor.replan_budget_s)
+        solver = IlqrSolver(solver_settings)
+        monitor = IterationMonitor(solver_settings, time.perf_counter(), 0, 0.0, None, None, "replan", False)
+        start = problem.evaluate(problem.with_torques(guess))
+        outcome = solver.solve(problem, start.z, problem.lower, problem.upper, monitor)
+        fresh = problem.evaluate(outcome.z)
+        speed = float(np.max(np.abs(self.scene.arm_qvel(fresh.states)) / self.scene.velocity_limit))
+        if solver.gains is None or not (fresh.cost < start.cost and fresh.position_error_m <= start.position_error_m
+                                        and speed <= 1.0):
+            return None
+        # iLQR's cost only falls, so its outcome is the last kept step's, whose backward pass gave solver.gains
+        return self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem)

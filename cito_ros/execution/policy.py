@@ -1,0 +1,78 @@
+"""A plan as a controller runs it: feed-forward torques, the states they should lead through, and feedback.
+
+A `Policy` starts at `start_s` on the robot's clock. At time t it gives the joint torques
+
+    u(t) = clamp(u_ref(t) + K(t) (x - x_ref(t)), -limit, limit)
+
+with u_ref the plan's knot torque, x_ref the planner model's state along the plan at that simulation step,
+x the estimated state, the difference taken in MuJoCo's tangent space (positions by mj_differentiatePos,
+then velocities: the arm's joints and the cube's free joint), and K the knot's feedback gain (cito_ros.planner
+.solvers.ilqr: the gains of the backward pass, on the whole state, arm and cube), interpolated linearly from
+one knot's to the next. These are the torques u of the planner's model, in which the motors add the arm's
+bias forces (gravity, Coriolis): a robot that adds none gets u plus those, computed from the model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cito_ros.model.scene import Scene
+
+
+@dataclass(frozen=True)
+class Policy:
+    start_s: float               # on the robot's clock: where the plan's time 0 is
+    control_period_s: float      # a knot
+    timestep_s: float            # a simulation step
+    torques_Nm: np.ndarray       # (N, 7) u_ref per knot
+    gains: np.ndarray            # (N, 7, nx) K per knot, nx = 2 nv
+    reference: np.ndarray        # (T + 1, nstate) x_ref at every step of the planner's model, T = N * steps
+    predicted_error_m: float     # the planner model's position error of this plan at its end
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + len(self.torques_Nm) * self.control_period_s
+
+    @property
+    def final_state(self) -> np.ndarray:
+        return self.reference[-1]
+
+    def torques_at(self, times_s: np.ndarray) -> np.ndarray:
+        """u_ref at the given robot times (the last knot's after the end, the first's before the start)."""
+        knots = np.floor((np.asarray(times_s) - self.start_s) / self.control_period_s + 1e-9).astype(int)
+        return self.torques_Nm[np.clip(knots, 0, len(self.torques_Nm) - 1)]
+
+    def command(self, time_s: float, state: np.ndarray, scene: Scene, data: mujoco.MjData) -> np.ndarray:
+        """u(time_s) for the estimated state (mjSTATE_FULLPHYSICS of `scene`'s model); `data` is scratch."""
+        steps = len(self.reference) - 1
+        step = int(np.clip(np.floor((time_s - self.start_s) / self.timestep_s + 1e-9), 0, steps))
+        per_knot = steps // len(self.torques_Nm)
+        knot = min(step // per_knot, len(self.torques_Nm) - 1)
+        fraction = (step - knot * per_knot) / per_knot
+        gain = self.gains[knot] if knot + 1 >= len(self.gains) else \
+            (1.0 - fraction) * self.gains[knot] + fraction * self.gains[knot + 1]
+        deviation = state_difference(scene, data, state, self.reference[step])
+        return np.clip(self.torques_Nm[knot] + gain @ deviation, -scene.torque_limit, scene.torque_limit)
+
+
+def state_difference(scene: Scene, data: mujoco.MjData, state: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """state - reference in the tangent space (2 nv): position differences by mj_differentiatePos, then the
+    velocity differences."""
+    model = scene.model
+    nq, nv = model.nq, model.nv
+    q, r = scene.state_qpos_adr, scene.state_qvel_adr
+    difference = np.empty(2 * nv)
+    mujoco.mj_differentiatePos(model, difference[:nv], 1.0, reference[q:q + nq], state[q:q + nq])
+    difference[nv:] = state[r:r + nv] - reference[r:r + nv]
+    return difference
+
+
+def bias_torques(scene: Scene, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+    """The arm's bias forces (gravity, Coriolis, centrifugal) at (q, qdot) in `scene`'s model: what its motors
+    add to u, and what a robot that adds none must be sent on top of it."""
+    data.qpos[scene.arm_qpos_adr], data.qvel[scene.arm_dof_adr] = q, qdot
+    mujoco.mj_fwdPosition(scene.model, data)
+    mujoco.mj_fwdVelocity(scene.model, data)
+    return data.qfrc_bias[scene.arm_dof_adr].copy()

@@ -1,0 +1,136 @@
+"""`cito-bench closed-loop`: pushes executed open loop and closed loop on simulated robots whose worlds are not
+the planner's model. ROS-free (the `--ros` run of the CLI goes through the nodes instead).
+
+Goals: the `targets` distribution (seeded; cito_ros.studies.targets), judged apart by zone: inside the steady
+push reach, and beyond it (reached only by a strike: the near-reach share, best effort). Worlds (WORLDS): the
+cube's friction x0.5 or x1.5 and its mass x0.5 or x2, each with the cube off by 15 mm along x and along y and
+by 0.1 rad (the signs seeded per goal), a camera with 1 mm and 0.01 rad of noise and 30 ms of latency. Each goal
+in each world is executed twice (cito_ros.execution.episode):
+
+- open loop: planned from where the planner was told the cube is (the scene's pose), executed by a joint
+  trajectory controller with the plan's efforts as feed-forward;
+- closed loop: the executor, from what it measures, its feedback policy replanned as it goes, in process, in
+  lock step with the world (every replan's compute time passes on the world's clock before it takes effect).
+
+Success is judged at rest on the world's truth: within 2 cm and 0.15 rad, and within 2 cm and 0.1 rad.
+"""
+from __future__ import annotations
+
+import math
+import statistics
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from cito_ros.execution.episode import run_closed_loop, run_open_loop
+from cito_ros.execution.executor import ExecuteGoal
+from cito_ros.execution.world import Mismatch, SimulatedWorld
+from cito_ros.model.scene import start_configuration
+from cito_ros.planner import push_limits
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.results import ZONES, zone
+from cito_ros.settings import Settings
+from cito_ros.studies.targets import Goal
+
+OFFSET_M, OFFSET_YAW_RAD = 0.015, 0.1
+SENSING = dict(pose_noise_m=0.001, yaw_noise_rad=0.01, latency_s=0.03)
+WORLDS = tuple(Mismatch(f"friction x{f:g}, mass x{m:g}", f, m, **SENSING) for f in (0.5, 1.5) for m in (0.5, 2.0))
+MODES = ("open_loop", "closed_loop")
+
+
+def world_for(mismatch: Mismatch, goal: Goal) -> Mismatch:
+    """The world's cube offset for a goal: 15 mm along x and y and 0.1 rad, the signs seeded by the goal."""
+    signs = np.random.default_rng(1000 + goal.index).choice([-1.0, 1.0], 3)
+    return replace(mismatch, offset_m=(signs[0] * OFFSET_M, signs[1] * OFFSET_M),
+                   offset_yaw_rad=signs[2] * OFFSET_YAW_RAD)
+
+
+def steady_margin_m(goal: Goal, settings: Settings) -> float:
+    """The goal's steady_reach_margin_m in the planner's model (the zone it is judged in)."""
+    posed = build_problem(settings, PushRequest("vscm", start_q=start_configuration(goal.beta),
+                                                target_position_m=np.array(goal.target_position_m)))
+    return push_limits.steady_reach_m(posed.scene, posed.initial_state) - math.hypot(*goal.target_position_m)
+
+
+def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Settings) -> dict[str, Any]:
+    """One goal in one world, open or closed loop: the episode's record."""
+    world_mismatch = world_for(mismatch, goal)
+    world = SimulatedWorld(settings, world_mismatch, start_configuration(goal.beta), seed=goal.index)
+    target = ExecuteGoal(tuple(goal.target_position_m), goal.target_yaw_rad, model)
+    if mode == "open_loop":
+        told = settings.scene.object
+        result = run_open_loop(settings, target, world, (tuple(told.position_m), told.yaw_rad))
+    else:
+        result = run_closed_loop(settings, target, world)
+    return {"goal": goal.index, "world": mismatch.name, "mode": mode, "contact_model": model,
+            "offset_m": list(world_mismatch.offset_m), "offset_yaw_rad": world_mismatch.offset_yaw_rad,
+            "steady_reach_margin_m": steady_margin_m(goal, settings), **result.as_dict()}
+
+
+def jobs(goals: list[Goal], model: str, settings: Settings, worlds=WORLDS) -> list:
+    return [(f"goal{goal.index:03d}-{world.name}-{mode}", episode, (goal, world, mode, model, settings))
+            for goal in goals for world in worlds for mode in MODES]
+
+
+def _stats(values: list[float]) -> dict[str, float | None]:
+    values = [v for v in values if math.isfinite(v)]
+    return {"median": float(statistics.median(values)) if values else None,
+            "p90": float(np.percentile(values, 90)) if values else None}
+
+
+def report(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per zone, world and mode: successes (both tolerances), errors, replan rates and compute per replan."""
+    records = [r for r in records if not r.get("failed")]
+    out: dict[str, Any] = {}
+    for name in ZONES:
+        for world in dict.fromkeys(r["world"] for r in records):
+            for mode in MODES:
+                rows = [r for r in records if r["world"] == world and r["mode"] == mode
+                        and zone(r["steady_reach_margin_m"]) == name]
+                if not rows:
+                    continue
+                out.setdefault(name, {}).setdefault(world, {})[mode] = {
+                    "episodes": len(rows), "success": sum(r["success"] for r in rows),
+                    "success_tight": sum(r["success_tight"] for r in rows),
+                    "position_error_m": _stats([r["position_error_m"] for r in rows]),
+                    "max_joint_speed_ratio": _stats([r["max_joint_speed_ratio"] for r in rows]),
+                    "pushes": _stats([float(r["pushes"]) for r in rows]),
+                    "replan_rate_hz": _stats([r["replan_rate_hz"] for r in rows]),
+                    "replan_compute_s": _stats([r["replan_compute_s"] for r in rows]),
+                    "replans": _stats([float(r["replans"]) for r in rows])}
+    closed = [r for r in records if r["mode"] == "closed_loop"]
+    return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]),
+            "replan_compute_s": _stats([r["replan_compute_s"] for r in closed])}
+
+
+def markdown(summary: dict[str, Any]) -> str:
+    def cm(entry) -> str:
+        return "-" if entry["median"] is None else f"{100 * entry['median']:.2f} / {100 * entry['p90']:.2f}"
+
+    lines = []
+    for name, title in (("steady", "Goals inside the steady push reach"),
+                        ("strike", "Goals beyond it (the near-reach share, reached only by a strike: best effort)")):
+        if name not in summary["zones"]:
+            continue
+        lines += [f"{title}:", "", "| world | mode | success 2 cm / 0.15 rad | success 2 cm / 0.1 rad | error median / "
+                  "p90 (cm) | pushes median | replans median | replan rate median (Hz) | compute per replan median "
+                  "(ms) | max joint speed / limit median / p90 |", "|---|---|---|---|---|---|---|---|---|---|"]
+        for world, modes in summary["zones"][name].items():
+            for mode, e in modes.items():
+                rate, compute = e["replan_rate_hz"]["median"], e["replan_compute_s"]["median"]
+                speed = e["max_joint_speed_ratio"]
+                lines.append(
+                    f"| {world} | {mode.replace('_', ' ')} | {e['success']}/{e['episodes']} "
+                    f"({e['success'] / e['episodes']:.0%}) | {e['success_tight']}/{e['episodes']} "
+                    f"({e['success_tight'] / e['episodes']:.0%}) | {cm(e['position_error_m'])} | "
+                    f"{e['pushes']['median']:.0f} | {e['replans']['median']:.0f} | "
+                    f"{'-' if rate is None else f'{rate:.1f}'} | {'-' if compute is None else f'{1e3 * compute:.0f}'} | "
+                    f"{speed['median']:.2f} / {speed['p90']:.2f} |")
+        lines.append("")
+    rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
+    if rate["median"] is not None:
+        lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "
+                     f"episodes' medians {rate['p90']:.1f} Hz), median compute per replan {1e3 * compute['median']:.0f} "
+                     f"ms.")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,136 @@
+"""The execution layer in process: the simulated robot's world and camera, the state estimate, the feedback
+policy, the compute delay honoured, and the executor holding the arm when its measurements stop or it is
+cancelled. Real MuJoCo, real iLQR."""
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from cito_ros.execution.estimator import StateEstimator
+from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
+from cito_ros.execution.policy import bias_torques, state_difference
+from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld
+from cito_ros.model.scene import start_configuration
+
+GOAL = ExecuteGoal((1.09, 0.03), 0.1, "vscm")  # 10 cm from q0(beta = 7), inside the steady push reach
+
+
+def deliver(executor: Executor, world: SimulatedWorld) -> None:
+    executor.on_joints(world.joints())
+    for reading in world.camera():
+        executor.on_pose(reading, world.time_s)
+
+
+def started(settings, mismatch=Mismatch()) -> tuple[Executor, SimulatedWorld]:
+    """An executor and its world, the camera's first pose in."""
+    world, executor = SimulatedWorld(settings, mismatch, start_configuration(7)), Executor(settings, GOAL)
+    deliver(executor, world)
+    while not executor.estimator.has_pose:
+        joints = world.joints()
+        world.step(bias_torques(world.scene, mujoco.MjData(world.model), joints.q, joints.qdot))
+        deliver(executor, world)
+    return executor, world
+
+
+def test_the_world_is_the_scene_with_the_mismatch_and_its_camera_is_late_noisy_and_slow(settings):
+    mismatch = Mismatch("off", 1.5, 2.0, (0.015, -0.015), 0.1, 0.001, 0.01, 0.03, 30.0)
+    world = SimulatedWorld(settings, mismatch, start_configuration(7), seed=3)
+    told = settings.scene.object
+    assert world.scene.config.object.mass_kg == pytest.approx(2.0 * told.mass_kg)
+    assert world.scene.config.object.friction == pytest.approx(1.5 * told.friction)
+    position, _ = world.true_object_pose()
+    assert position[:2] == pytest.approx(np.add(told.position_m, (0.015, -0.015)), abs=1e-3)
+    readings = []
+    for _ in range(200):  # 1 s
+        world.step(np.full(7, 1e4))  # clamped to the motor limits
+        assert np.all(np.abs(world.joints().effort) <= world.scene.torque_limit)
+        readings += [(world.time_s, r) for r in world.camera()]
+    assert 28 <= len(readings) <= 31  # 30 Hz
+    assert all(arrived - r.stamp_s >= 0.03 - 1e-9 for arrived, r in readings)  # 30 ms late
+    errors = [np.linalg.norm(r.position_m[:2] - world.true_object_pose()[0][:2]) for _, r in readings[:5]]
+    assert 0 < max(errors) < 0.01  # noisy, by millimetres
+
+
+def test_the_estimate_carries_the_cube_forward_at_the_velocity_its_poses_show(settings, scenes):
+    scene = scenes["vscm"]
+    estimator = StateEstimator(scene, scene.initial_state(start_configuration(7)))
+    for k in range(5):  # moving at 0.2 m/s along x, turning at 0.5 rad/s
+        t = 0.1 + k / 30
+        yaw = 0.5 * t
+        estimator.add_pose(PoseReading(t, np.array([1.0 + 0.2 * t, 0.0, 0.3]),
+                                       np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])))
+    (x, y), yaw = estimator.object_pose(0.3)
+    assert (x, y, yaw) == pytest.approx((1.06, 0.0, 0.15), abs=1e-9)
+    assert estimator.object_speed_m_s() == pytest.approx(0.2 + 0.5 * np.linalg.norm(scene.object_half_size))
+
+
+def test_a_policy_commands_its_torques_on_its_reference_and_pulls_back_off_it(settings):
+    executor, world = started(settings)
+    executor.work(world.time_s)  # the push planned, in line
+    policy = executor._pending.policy
+    scene, data = executor.model.scene, mujoco.MjData(executor.model.scene.model)
+    step = 40
+    on = policy.reference[step]
+    at = policy.start_s + step * policy.timestep_s
+    assert np.array_equal(policy.command(at, on, scene, data), np.clip(policy.torques_Nm[step // 16], -scene.torque_limit,
+                                                                       scene.torque_limit))
+    off = on.copy()
+    off[scene.state_qpos_adr + scene.arm_qpos_adr[0]] += 1e-3  # the first joint ahead of its reference
+    assert state_difference(scene, data, off, on)[0] == pytest.approx(1e-3)
+    assert policy.command(at, off, scene, data)[0] < policy.command(at, on, scene, data)[0]  # and pulled back
+
+
+def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_was_computed_from(settings):
+    """In lock step the world's clock stands still while a plan is computed; the plan waits on the world's clock
+    for as long as it took, the arm driven by the running policy meanwhile."""
+    executor, world = started(settings)
+    works, active = [], []
+    while executor.phase is not Phase.DONE and world.time_s < 20:
+        job = executor.job(world.time_s)
+        work = executor.work(world.time_s)
+        if work is not None:
+            works.append((job.now_s, work))
+        before = executor.policy
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+        if executor.policy is not before:
+            active.append((world.time_s - world.timestep_s, executor.policy))
+    assert executor.ending is not None and works and len(works) >= 3  # the plan, and replans
+    assert all(work.effective_s >= computed + work.compute_s for computed, work in works)
+    effective = {id(work.policy): work.effective_s for _, work in works}
+    assert active and all(t >= effective[id(policy)] for t, policy in active)
+
+
+def pushing(settings, steps: int) -> tuple[Executor, SimulatedWorld]:
+    """An execution planned and run for `steps` control steps."""
+    executor, world = started(settings)
+    executor.work(world.time_s)
+    for _ in range(steps):
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    return executor, world
+
+
+def test_stale_measurements_end_the_execution_with_the_arm_held_where_it_is(settings):
+    executor, world = pushing(settings, 40)
+    q = world.joints().q
+    for _ in range(30):  # 150 ms without a camera pose: the joint states still come
+        world.step(executor.command(world.time_s))
+        executor.on_joints(world.joints())
+    assert executor.ending is Ending.STALE_MEASUREMENTS and "cube poses" in executor.message
+    assert executor.phase is Phase.DONE and np.allclose(executor._hold_q, q, atol=0.05)
+    for _ in range(100):  # held: the arm stays where it was stopped
+        world.step(executor.command(world.time_s))
+        executor.on_joints(world.joints())
+    assert np.abs(world.joints().qdot).max() < 0.05
+
+
+def test_a_cancelled_execution_holds_the_arm(settings):
+    executor, world = pushing(settings, 60)
+    executor.cancel()
+    assert executor.ending is Ending.CANCELLED and executor.job(world.time_s) is None
+    for _ in range(100):
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert np.abs(world.joints().qdot).max() < 0.05 and executor.phase is Phase.DONE

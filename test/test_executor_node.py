@@ -1,0 +1,175 @@
+"""The executor node and the simulated robot as a robot stack meets them: each in its own process, an action
+client and subscribers in this one, over Fast DDS on an isolated domain. One execution at a time, cancel and
+stale measurements hold the arm, and every execution's bag reads back."""
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from action_msgs.msg import GoalStatus
+from cito_msgs.action import ExecutePush
+from rclpy.action import ActionClient
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from node_harness import read_with_mcap, read_with_rosbags, wait_for_bag
+
+BIN = Path(sys.executable).parent
+Result = ExecutePush.Result
+
+
+def spawn(program: str, domain: int, *parameters: str) -> subprocess.Popen:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    return subprocess.Popen([str(BIN / program), "--ros-args", *(a for p in parameters for a in ("-p", p))], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+
+class Operator:
+    """An ExecutePush action client and a /joint_states subscriber on `domain`."""
+
+    def __init__(self, domain: int):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node("test_operator", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.action = ActionClient(self.node, ExecutePush, "/cito/execute_push")
+        self.joints: list[JointState] = []
+        self.feedback: list = []
+
+    def listen(self) -> None:
+        """From now on, the joint states too."""
+        self.node.create_subscription(JointState, "/joint_states", self.joints.append,
+                                      QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
+
+    def spin(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def wait(self, future, timeout_s: float = 120.0):
+        deadline = time.monotonic() + timeout_s
+        while not future.done() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+        assert future.done(), "no answer from the executor node"
+        return future.result()
+
+    def send(self, x: float = 1.09, y: float = 0.03, yaw: float = 0.0):
+        goal = ExecutePush.Goal(contact_model="vscm")
+        goal.target_pose.position.x, goal.target_pose.position.y, goal.target_pose.position.z = x, y, 0.1
+        goal.target_pose.orientation.z, goal.target_pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+        return self.wait(self.action.send_goal_async(goal, feedback_callback=lambda m: self.feedback.append(
+            m.feedback)), 30.0)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory):
+    """The simulated robot (the cube 3 cm off sideways from where the planner is told, a late, noisy camera) and
+    the executor node, and an operator."""
+    domain = 211 + os.getpid() % 20  # Fast DDS takes domains up to 232
+    bags = tmp_path_factory.mktemp("execution_bags")
+    sim = spawn("cito-sim-robot", domain, "beta:=7.0", "offset_y_m:=0.03", "pose_noise_m:=0.001", "latency_s:=0.03")
+    # measurements count as stale only after 0.5 s here: on this 2-core machine, with the planner, the robot and
+    # this test all busy, the node's callbacks have stalled for 0.3 s (docs/results.md); the default 0.1 s is the
+    # stale test's below
+    node = spawn("cito-executor-node", domain, f"node.bag_directory:={bags}", "executor.stale_after_s:=0.5")
+    operator = Operator(domain)
+    try:
+        assert operator.action.wait_for_server(timeout_sec=60.0), "the execute_push action did not appear"
+        operator.spin(1.0)  # joint states and camera poses flowing
+        yield operator, sim, node
+    finally:
+        operator.close()
+        stop(node)
+        stop(sim)
+
+
+def test_a_second_goal_is_rejected_while_one_runs_and_a_cancel_holds_the_arm(robot):
+    operator, sim, node = robot
+    running = operator.send()
+    assert running.accepted
+    assert not operator.send().accepted  # one execution at a time
+    operator.spin(1.0)
+    answer = operator.wait(running.cancel_goal_async(), 30.0)
+    assert len(answer.goals_canceling) == 1
+    result = operator.wait(running.get_result_async())
+    assert result.status == GoalStatus.STATUS_CANCELED, result.result.message
+    assert result.result.status == Result.STATUS_CANCELLED and not result.result.success
+    assert "held" in result.result.message
+    operator.listen()
+    operator.spin(1.5)  # after the cancel the arm is held: it comes to rest and stays
+    speeds = np.array([np.abs(m.velocity).max() for m in operator.joints[-40:]])
+    assert len(speeds) == 40 and speeds.max() < 0.05
+    assert sim.poll() is None and node.poll() is None
+
+
+def test_an_execution_is_recorded_and_its_bag_reads_back(robot):
+    operator, _, _ = robot
+    operator.feedback.clear()
+    handle = operator.send()
+    assert handle.accepted
+    result = operator.wait(handle.get_result_async()).result
+    assert result.status in (Result.STATUS_SUCCEEDED, Result.STATUS_TASK_NOT_ACHIEVED, Result.STATUS_TIME_LIMIT,
+                             Result.STATUS_INVALID_REQUEST), result.message
+    assert operator.feedback and {f.phase for f in operator.feedback} <= {"planning", "pushing", "settling", "done"}
+    bag = Path(result.bag_path)
+    assert wait_for_bag(bag)
+    for reader in (read_with_mcap, read_with_rosbags):
+        recorded = reader(bag)
+        assert set(recorded) >= {"/joint_states", "/object/pose", "/effort_controller/commands"}
+        assert len(recorded["/joint_states"]) > 100 and len(recorded["/effort_controller/commands"]) > 100
+        assert all(len(m.data) == 7 for _, m in recorded["/effort_controller/commands"][:10])
+    if result.replans:
+        assert read_with_rosbags(bag)["/cito/predicted_object_path"]
+
+
+def test_stale_measurements_stop_the_execution_safely(tmp_path):
+    """The robot goes silent mid-execution (its driver killed): the executor ends with its status, holding."""
+    domain = 191 + os.getpid() % 20
+    sim = spawn("cito-sim-robot", domain, "beta:=7.0")
+    # 0.3 s, not the default 0.1 s: the start state must be fresh when the goal arrives, on a busy 2-core machine
+    node = spawn("cito-executor-node", domain, f"node.bag_directory:={tmp_path}", "executor.stale_after_s:=0.3")
+    operator = Operator(domain)
+    try:
+        assert operator.action.wait_for_server(timeout_sec=60.0)
+        operator.spin(1.0)
+        handle = operator.send()
+        assert handle.accepted
+        deadline = time.monotonic() + 30.0
+        while not operator.feedback and time.monotonic() < deadline:  # the execution has started
+            operator.spin(0.1)
+        assert operator.feedback, "no feedback from the execution"
+        sim.kill()
+        result = operator.wait(handle.get_result_async(), 60.0).result
+        assert result.status == Result.STATUS_STALE_MEASUREMENTS and not result.success
+        assert "no joint states" in result.message or "no cube poses" in result.message
+        assert node.poll() is None
+        assert wait_for_bag(Path(result.bag_path))
+    finally:
+        operator.close()
+        stop(node)
+        stop(sim)
