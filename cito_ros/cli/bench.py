@@ -12,7 +12,7 @@
     cito-bench roughness [--scenes S ...] [--plans] [--json]   how far a push's outcome jumps under tiny changes
     cito-bench push-limits [--heights H ...] [--step M] [--json]   where a push that holds its height can leave the cube
     cito-bench round-trip [--n 20] [--seed S] [--json]   the node's answer time beyond the solve, and its bags
-    cito-bench closed-loop [--n 30] [--seed S] [--out DIR] [--ros]   open and closed loop in mismatched worlds
+    cito-bench closed-loop [--n 30] [--seed S] [--out DIR]   open and closed loop in mismatched worlds (in process)
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with

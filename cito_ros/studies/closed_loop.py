@@ -1,5 +1,6 @@
 """`cito-bench closed-loop`: pushes executed open loop and closed loop on simulated robots whose worlds are not
-the planner's model. ROS-free (the `--ros` run of the CLI goes through the nodes instead).
+the planner's model. ROS-free: the executor's own code in lock step with the world, no DDS (a run through
+the nodes, `--ros`, is not built yet).
 
 Goals: the `targets` distribution (seeded; cito_ros.studies.targets), judged apart by zone: inside the steady
 push reach, and beyond it (reached only by a strike: the near-reach share, best effort). Worlds (WORLDS): the
