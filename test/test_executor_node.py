@@ -94,8 +94,8 @@ def robot(tmp_path_factory):
     bags = tmp_path_factory.mktemp("execution_bags")
     sim = spawn("cito-sim-robot", domain, "beta:=7.0", "offset_y_m:=0.03", "pose_noise_m:=0.001", "latency_s:=0.03")
     # measurements count as stale only after 0.5 s here: on this 2-core machine, with the planner, the robot and
-    # this test all busy, the node's callbacks have stalled for 0.3 s (docs/results.md); the default 0.1 s is the
-    # stale test's below
+    # this test all busy, the node's callbacks have stalled for up to 0.3 s (seen while this test was written); the
+    # stale test below uses 0.3 s
     node = spawn("cito-executor-node", domain, f"node.bag_directory:={bags}", "executor.stale_after_s:=0.5")
     operator = Operator(domain)
     try:

@@ -7,8 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.candidates import Executed
-from cito_ros.planner.plan import plan_push
+from cito_ros.planner.physical import solve_physical
+from cito_ros.planner.plan import evaluate_plan, plan_push
 from cito_ros.planner.results import Metrics, Status, shortfalls, succeeds
 
 SHORT_PUSH_M = [1.09, 0.0]
@@ -83,3 +85,22 @@ def test_the_papers_plan_succeeds_as_planned_and_fails_when_executed(settings):
     reasons = shortfalls(m, settings.task)
     assert m.position_error_m > settings.task.success_position_error_m and any("position" in r for r in reasons)
     assert m.max_joint_speed_ratio > 1.0 and any("joint speeds" in r for r in reasons)
+
+
+def test_the_returned_plan_is_judged_on_the_executions_the_stages_judged_it_on(settings):
+    """The evaluation takes the stages' executions of the returned torques (executed, tracked, each with the hold)
+    instead of running them again: the figures and motions are bit for bit those of running them again."""
+    request = PushRequest("cccm", 7.0, target_position_m=np.array(SHORT_PUSH_M), target_yaw_rad=0.1)
+    posed = build_problem(settings, request)
+    outcome = solve_physical(settings, request)
+    assert outcome.executed is not None and outcome.executed.motions is not None
+    reused = evaluate_plan(outcome, posed, settings)
+    again = evaluate_plan(dataclasses.replace(outcome, executed=None), posed, settings)
+    for name in Metrics.__dataclass_fields__:
+        if not name.endswith("_time_s"):
+            a, b = getattr(reused.metrics, name), getattr(again.metrics, name)
+            assert a == b or (isinstance(a, float) and math.isnan(a) and math.isnan(b)), name
+    for motion in ("trajectory", "tracked", "rest", "tracked_rest"):
+        for field in ("q", "qdot", "object_position_m", "object_quaternion", "torque_Nm"):
+            assert np.array_equal(getattr(getattr(reused, motion), field), getattr(getattr(again, motion), field)), \
+                f"{motion}.{field}"

@@ -204,7 +204,10 @@ class Executor:
             if self.phase is Phase.DONE or self._pending is not None or self._joints is None or \
                     not self.estimator.has_pose or now_s < self._planner_free_s:
                 return None
-            if self.phase is Phase.PUSHING and now_s + self.settings.executor.min_replan_knots * \
+            # as PushModel.replan counts the knots left: from the first knot after its budget (a replan that
+            # would find too few is not a replan, and must not count as one computed in no time)
+            executor = self.settings.executor
+            if self.phase is Phase.PUSHING and now_s + executor.replan_budget_s + executor.min_replan_knots * \
                     self.model.control_period_s >= self._push_end_s:
                 return None
             if self.phase not in (Phase.PLANNING, Phase.PUSHING):

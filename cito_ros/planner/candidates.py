@@ -14,13 +14,24 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from cito_ros.model.simulator import Trajectory
 from cito_ros.planner import results, tracking
 from cito_ros.planner.problem import PushProblem
 from cito_ros.settings import Settings, TrackingSettings
+
+
+@dataclass(frozen=True)
+class Motions:
+    """The executions an Executed was judged on, so that the returned plan's evaluation need not repeat them."""
+
+    trajectory: Trajectory           # the torques executed without the virtual force, over the horizon
+    rest: Trajectory | None          # then the arm held at its last position (tracking.held_motion)
+    tracked: Trajectory              # the executed joint trajectory tracked by a PD controller
+    tracked_rest: Trajectory | None  # then likewise held
 
 
 @dataclass(frozen=True)
@@ -34,6 +45,7 @@ class Executed:
     rest_object_speed_m_s: float               # after the hold
     tracked_position_error_m: float = math.nan  # by a PD joint trajectory controller; nan: not tracked
     offset_tracked_error_m: float = math.nan    # the worst with the reference off (tracking.reference_offsets)
+    motions: Motions | None = field(default=None, compare=False, repr=False)  # when tracked
 
     def rank(self, settings: Settings) -> tuple:
         task = settings.task
@@ -70,34 +82,42 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
     """The executed errors and arm limits of torques, by `executor` (no virtual force), the error of the
     executed joint trajectory tracked by a PD controller with `gains` (cito_ros.planner.tracking), and the worst
     error of that tracking with the reference off by each of gains.reference_offsets seeded smooth offsets
-    (the same for every plan) of up to gains.reference_offset_rad."""
+    (the same for every plan) of up to gains.reference_offset_rad; with the executions themselves."""
     evaluation = executor.evaluate(executor.with_torques(torques))
-    executed = judge(executor, evaluation, gains)
+    executed, rest = _judged(executor, evaluation, gains)
     if not math.isfinite(executed.position_error_m):
         return executed
     simulator, trajectory = executor.simulator, executor.trajectory(evaluation.z)
     offset_errors = tracking.offset_position_errors_m(simulator, executor.initial_state, trajectory, gains,
                                                       executor.task, gains.reference_offsets,
                                                       gains.reference_offset_rad, seed=12345)  # the same for every plan
-    tracked_error = tracking.tracked_rest_error_m(simulator, executor.initial_state, trajectory, executor.task, gains)
-    return dataclasses.replace(executed, tracked_position_error_m=tracked_error,
-                               offset_tracked_error_m=max(offset_errors, default=math.nan))
+    tracked = tracking.track(simulator, executor.initial_state, trajectory, gains)
+    tracked_rest = tracking.held_motion(simulator, tracked.final_state, gains)
+    return dataclasses.replace(executed, tracked_position_error_m=tracking.errors_at_rest(tracked_rest,
+                                                                                          executor.task)[0],
+                               offset_tracked_error_m=max(offset_errors, default=math.nan),
+                               motions=Motions(trajectory, rest, tracked, tracked_rest))
 
 
 def judge(executor: PushProblem, evaluation, gains: TrackingSettings) -> Executed:
     """The executed errors where the object comes to rest (tracking.errors_at_rest, the arm holding its last
     position for gains.hold_s), the object's speed then, and the arm's limits over the horizon and the hold, of
     an evaluation of `executor` (no virtual force), untracked."""
+    return _judged(executor, evaluation, gains)[0]
+
+
+def _judged(executor: PushProblem, evaluation, gains: TrackingSettings) -> tuple[Executed, Trajectory | None]:
+    """judge, and the hold it judged."""
     nowhere = Executed(math.inf, math.inf, math.inf, math.inf, math.inf)
     if not evaluation.finite:
-        return nowhere
+        return nowhere, None
     scene = executor.scene
     held = tracking.held_motion(executor.simulator, evaluation.states[-1], gains)
     position_error, angle_error = tracking.errors_at_rest(held, executor.task)
     if not math.isfinite(position_error):
-        return nowhere
+        return nowhere, held
     speeds = np.abs(scene.arm_qvel(evaluation.states)) / scene.velocity_limit
     held_speeds = np.abs(held.qdot) / scene.velocity_limit
     return Executed(position_error, angle_error, max(float(speeds.max()), float(held_speeds.max())),
                     max(scene.joint_range_excess(scene.arm_qpos(evaluation.states)), scene.joint_range_excess(held.q)),
-                    scene.object_speed_m_s(held.final_state))
+                    scene.object_speed_m_s(held.final_state)), held

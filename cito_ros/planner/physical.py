@@ -126,12 +126,13 @@ def solve_physical(settings: Settings, request: PushRequest, *,
         ordered.append(results[index])
         if settles(index):
             break
-    _, outcome = min(ordered, key=lambda result: result[0].rank(settings))
+    executed, outcome = min(ordered, key=lambda result: result[0].rank(settings))
     log = tuple(entry for _, result in ordered for entry in result.log)
     records = tuple(record for _, result in ordered for record in result.stages)
     interrupted = next((result.status for _, result in ordered if result.status.interrupted), None)
     return dataclasses.replace(outcome, log=log, stages=records, status=interrupted or outcome.status,
-                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in ordered))
+                               solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in ordered),
+                               executed=executed)
 
 
 class StartStop:

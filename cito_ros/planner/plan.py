@@ -19,6 +19,7 @@ import numpy as np
 
 from cito_ros.planner import push_limits, tracking
 from cito_ros.planner.builder import PlanningProblem, PushRequest, build_problem
+from cito_ros.planner.candidates import Motions
 from cito_ros.planner.physical import solve_physical
 from cito_ros.planner.results import IterationLog, Metrics, PlanResult, Status, succeeds
 from cito_ros.planner.stages import Outcome, solve_paper
@@ -77,12 +78,15 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
     simulator, task = discovery.simulator, discovery.task
     _, variables = discovery.split(outcome.planned_z)
     planned = discovery.trajectory(outcome.planned_z)
-    trajectory = executor.trajectory(executor.with_torques(outcome.torques))
-    tracked = tracking.track(simulator, discovery.initial_state, trajectory, settings.tracking)
-
-    # where the object comes to rest once the arm holds its last position: a plan may end with it sliding
-    rest = tracking.held_motion(simulator, trajectory.final_state, settings.tracking)
-    tracked_rest = tracking.held_motion(simulator, tracked.final_state, settings.tracking)
+    # executed, tracked, and where the object comes to rest once the arm holds its last position (a plan may end
+    # with it sliding): as the stages judged the returned torques, when they did (with the same tracking gains)
+    motions = outcome.executed.motions if outcome.executed is not None else None
+    if motions is None:
+        trajectory = executor.trajectory(executor.with_torques(outcome.torques))
+        tracked = tracking.track(simulator, discovery.initial_state, trajectory, settings.tracking)
+        motions = Motions(trajectory, tracking.held_motion(simulator, trajectory.final_state, settings.tracking),
+                          tracked, tracking.held_motion(simulator, tracked.final_state, settings.tracking))
+    trajectory, rest, tracked, tracked_rest = motions.trajectory, motions.rest, motions.tracked, motions.tracked_rest
     position_error, orientation_error = tracking.errors_at_rest(rest, task)
     planned_position_error, planned_orientation_error = task.final_errors(planned)  # the paper's, at T
     tracked_position_error, tracked_orientation_error = tracking.errors_at_rest(tracked_rest, task)

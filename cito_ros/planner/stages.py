@@ -51,6 +51,7 @@ class Outcome:
     stages: tuple[StageRecord, ...]
     solve_time_s: float
     setup_s: float                # posing the problems, summed over starts
+    executed: Executed | None = None  # the returned torques' execution, judged (the physical pipeline)
 
 
 class SolveClock:

@@ -64,6 +64,7 @@ from cito_ros.ros.recorder import Recorder, Recording
 NAME = "/cito/plan_push"  # the action's and the service's
 STEP_DEPTH = 1000  # a plan's per-step messages (321 at the default horizon) fit in one history
 DRAIN_S = 60.0     # at shutdown, the longest the node waits for its bags to be finished
+ANSWER_WAIT_S = 1.0  # the recorder waits this long at most for an answer to be handed to rclpy
 Status = PlanPush.Response
 
 
@@ -94,12 +95,17 @@ class Answer:
 
     def __init__(self, status: int, message: str, bag_path: str = "", messages=None):
         self.status, self.message, self.bag_path, self.messages = status, message, bag_path, messages
+        # set once the answer is filled and goes to rclpy: the plan's recording starts only then, so that the
+        # recorder's Python does not take the GIL from the answer on its way out
+        self.filled = threading.Event()
 
     def fill(self, response):
         if self.messages is not None:
-            return ros_messages.fill_response(response, self.messages)
-        response.success, response.status, response.message = False, self.status, self.message
-        response.bag_path = self.bag_path
+            response = ros_messages.fill_response(response, self.messages)
+        else:
+            response.success, response.status, response.message = False, self.status, self.message
+            response.bag_path = self.bag_path
+        self.filled.set()
         return response
 
 
@@ -113,6 +119,9 @@ class PlannerNode(Node):
         self.bag_directory = Path(self.settings.node.bag_directory).expanduser().resolve()
         self.bag_directory.mkdir(parents=True, exist_ok=True)
 
+        self.recorder = Recorder(on_error=lambda message: self.get_logger().error(message))
+        self._markers: dict = {}  # scene (its object's pose aside) -> SceneMarkers; used on the recorder's thread
+        self._warm_up()  # before the service and the action appear: a client that finds them finds the node ready
         group = ReentrantCallbackGroup()
         self.publishers_ = {topic: self.create_publisher(cls, topic, _qos(depth, latched))
                             for topic, (cls, _, depth, latched) in TOPICS.items()}
@@ -124,9 +133,6 @@ class PlannerNode(Node):
         self._cancel = threading.Event()  # the running plan's
         self._busy = threading.Lock()
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="cito_solver")
-        self.recorder = Recorder(on_error=lambda message: self.get_logger().error(message))
-        self._markers: dict = {}  # scene (its object's pose aside) -> SceneMarkers; used on the recorder's thread
-        self._worker.submit(self._warm_up)
         self._request_ids = itertools.count(1)
         self.get_logger().info(f"ready: action and service {NAME}, default contact model "
                                f"{self.settings.node.default_contact_model}, bags in {self.bag_directory}")
@@ -223,7 +229,9 @@ class PlannerNode(Node):
                 if feedback is not None:
                     feedback(entry)
 
-            settings = settings.with_overrides({"solver.time_limit_s": inputs.time_limit_s})
+            # parse_request has checked the time limit; with_overrides would validate every setting again (8 ms)
+            settings = dataclasses.replace(settings, solver=dataclasses.replace(settings.solver,
+                                                                                time_limit_s=inputs.time_limit_s))
             self.get_logger().info(f"plan {request_id}: {inputs.contact_model} to "
                                    f"({inputs.target_position_m[0]:.3f}, {inputs.target_position_m[1]:.3f}) m, "
                                    f"yaw {inputs.target_yaw_rad:.3f} rad")
@@ -243,20 +251,24 @@ class PlannerNode(Node):
             stamp = self.get_clock().now().nanoseconds
             messages = ros_messages.plan_messages(result, request_id, stamp, self.frame_id, str(bag.path),
                                                   inputs.target_orientation, settings)
-            self.recorder.submit(self._publish_plan, result, messages, bag, recording=bag)
+            answer = Answer(messages.result.status, messages.result.message, str(bag.path), messages)
+            self.recorder.submit(self._publish_plan, result, messages, bag, answer.filled, recording=bag)
             self.get_logger().info(f"plan {request_id}: {messages.result.message} ({result.metrics.solve_time_s:.2f} s, "
                                    f"bag {bag.path})")
-            return Answer(messages.result.status, messages.result.message, str(bag.path), messages)
+            return answer
         except Exception as error:  # a bug must not kill the node; report it as a solver failure
             self.get_logger().error(f"plan {request_id} failed: {error!r}")
             return self._refuse(Status.STATUS_SOLVER_FAILED, f"internal error: {error!r}", str(bag.path))
         finally:
             bag.close()  # queued after everything of the plan, the per-state topics included
 
-    def _publish_plan(self, result, messages: ros_messages.PlanMessages, bag: Recording) -> None:
-        """On the recorder's thread, right after the answer: the latched topics, then the per-state topics of the
-        plan (the horizon, then the arm held where the object comes to rest); each per-state message serialized
-        once where rclpy's bytes are exact (cito_ros.ros.bag.exact_encoding_needed), published and written."""
+    def _publish_plan(self, result, messages: ros_messages.PlanMessages, bag: Recording,
+                      answered: threading.Event) -> None:
+        """On the recorder's thread, once the answer is on its way: the latched topics, then the per-state topics
+        of the plan (the horizon, then the arm held where the object comes to rest); each per-state message
+        serialized once where rclpy's bytes are exact (cito_ros.ros.bag.exact_encoding_needed), published and
+        written."""
+        answered.wait(ANSWER_WAIT_S)
         stamp = messages.state_stamps_ns[0]
         poses = ros_messages.object_poses(result, messages.state_stamps_ns, self.frame_id)
         path = PathMsg(header=messages.result.header, poses=poses)
@@ -287,7 +299,7 @@ class PlannerNode(Node):
 
     def _warm_up(self) -> None:
         """What the first plan of the configured scene would otherwise pay for on top of its solve: the steady push
-        reach of its answer's zone, and the scene's marker template (on the worker, and the recorder's thread)."""
+        reach of its answer's zone, and the scene's marker template (on the recorder's thread)."""
         try:
             posed = build_problem(self.settings, PushRequest(self.settings.node.default_contact_model))
             push_limits.steady_reach_m(posed.scene, posed.initial_state)
