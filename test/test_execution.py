@@ -69,16 +69,16 @@ def test_a_policy_commands_its_torques_on_its_reference_and_pulls_back_off_it(se
     executor, world = started(settings)
     executor.work(world.time_s)  # the push planned, in line
     policy = executor._pending.policy
-    scene, data = executor.model.scene, mujoco.MjData(executor.model.scene.model)
+    scene = executor.model.scene
     step = 40
     on = policy.reference[step]
     at = policy.start_s + step * policy.timestep_s
-    assert np.array_equal(policy.command(at, on, scene, data), np.clip(policy.torques_Nm[step // 16], -scene.torque_limit,
+    assert np.array_equal(policy.command(at, on, scene), np.clip(policy.torques_Nm[step // 16], -scene.torque_limit,
                                                                        scene.torque_limit))
     off = on.copy()
     off[scene.state_qpos_adr + scene.arm_qpos_adr[0]] += 1e-3  # the first joint ahead of its reference
-    assert state_difference(scene, data, off, on)[0] == pytest.approx(1e-3)
-    assert policy.command(at, off, scene, data)[0] < policy.command(at, on, scene, data)[0]  # and pulled back
+    assert state_difference(scene, off, on)[0] == pytest.approx(1e-3)
+    assert policy.command(at, off, scene)[0] < policy.command(at, on, scene)[0]  # and pulled back
 
 
 def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_was_computed_from(settings):

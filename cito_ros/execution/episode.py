@@ -21,13 +21,12 @@ import numpy as np
 
 from cito_ros.execution.estimator import yaw_of
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
-from cito_ros.execution.policy import bias_torques
+from cito_ros.execution.policy import bias_torques, hold_torques
 from cito_ros.execution.world import SimulatedWorld
 from cito_ros.planner.plan import plan_push
 from cito_ros.settings import Settings
 
 REST_WAIT_S = 3.0        # the longest the arm is held after an execution for the cube to come to rest
-REST_SPEED_M_S = 0.005   # at rest: no point of the cube faster than this (the world's truth)
 TIGHT_YAW_RAD = 0.1      # the stricter orientation tolerance reported beside the success one
 
 
@@ -78,7 +77,8 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
             plan_compute_s = work.compute_s
         step(executor.command(world.time_s))
     duration_s = world.time_s
-    position, orientation, at_rest = _settle(world, lambda: step(executor.command(world.time_s)), goal)
+    position, orientation, at_rest = _settle(world, lambda: step(executor.command(world.time_s)), goal,
+                                               settings.task.rest_speed_m_s)
     seconds = executor.replan_seconds
     return _episode("closed_loop", settings, position, orientation, at_rest, max(speeds), duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
@@ -115,10 +115,9 @@ def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
 
     def hold() -> None:  # the controller past its last point: the last point held, the arm's bias added
         joints = world.joints()
-        step(kp * (trajectory.q[-1] - joints.q) - kd * joints.qdot
-             + bias_torques(world.scene, data, joints.q, joints.qdot))
+        step(hold_torques(world.scene, data, kp, kd, trajectory.q[-1], joints.q, joints.qdot))
 
-    position, orientation, at_rest = _settle(world, hold, goal)
+    position, orientation, at_rest = _settle(world, hold, goal, settings.task.rest_speed_m_s)
     return _episode("open_loop", settings, position, orientation, at_rest, max(speeds), duration_s, "executed",
                     result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s)
 
@@ -130,14 +129,12 @@ def _episode(mode: str, settings: Settings, position: float, orientation: float,
                    near and orientation < TIGHT_YAW_RAD, position, orientation, at_rest, *rest)
 
 
-def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal) -> tuple[float, float, bool]:
-    """hold() step by step until the cube is at rest in the world (at most REST_WAIT_S); its true errors there."""
+def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal, rest_speed_m_s: float) -> tuple[float, float, bool]:
+    """hold() step by step until the cube is at rest in the world (no point faster than rest_speed_m_s, at most
+    REST_WAIT_S); its true errors there."""
     waited = 0.0
-    while world.object_speed_m_s() >= REST_SPEED_M_S and waited < REST_WAIT_S:
+    while world.object_speed_m_s() >= rest_speed_m_s and waited < REST_WAIT_S:
         hold()
         waited += world.timestep_s
     position, quaternion = world.true_object_pose()
-    target = goal.target_position_m
-    return float(math.hypot(position[0] - target[0], position[1] - target[1])), \
-        abs(math.remainder(yaw_of(quaternion) - goal.target_yaw_rad, 2 * math.pi)), \
-        world.object_speed_m_s() < REST_SPEED_M_S
+    return (*goal.errors(position, yaw_of(quaternion)), world.object_speed_m_s() < rest_speed_m_s)

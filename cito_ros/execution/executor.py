@@ -65,6 +65,12 @@ class ExecuteGoal:
     scene: str | None = None                # a scene in config/scenes; None: the settings' scene
     time_limit_s: float = 0.0               # 0: executor.time_limit_s
 
+    def errors(self, position_m, yaw_rad: float) -> tuple[float, float]:
+        """The position (m) and yaw (rad) error of a cube at (x, y) with yaw_rad against this goal."""
+        target = self.target_position_m
+        return float(math.hypot(position_m[0] - target[0], position_m[1] - target[1])), \
+            abs(math.remainder(yaw_rad - self.target_yaw_rad, 2 * math.pi))
+
 
 @dataclass(frozen=True)
 class Work:
@@ -131,7 +137,7 @@ class Executor:
                 self._advance(now_s)
             if self.phase is Phase.PUSHING:
                 state = self.estimator.state(joints, now_s)
-                u = self.policy.command(now_s, state, self.model.scene, self._data)
+                u = self.policy.command(now_s, state, self.model.scene)
             else:
                 kp, kd = self.model.servo_gains
                 u = kp * (self._hold_q - joints.q) - kd * joints.qdot
@@ -190,10 +196,8 @@ class Executor:
 
     def errors(self, now_s: float) -> tuple[float, float]:
         """The cube's position and yaw error against the goal, as the camera sees it now."""
-        (x, y), yaw = self.estimator.object_pose(now_s)
-        target = self.goal.target_position_m
-        return float(math.hypot(x - target[0], y - target[1])), \
-            abs(math.remainder(yaw - self.goal.target_yaw_rad, 2 * math.pi))
+        position, yaw = self.estimator.object_pose(now_s)
+        return self.goal.errors(position, yaw)
 
     # ------------------------------------------------------------------ planning
 

@@ -44,8 +44,8 @@ class Policy:
         knots = np.floor((np.asarray(times_s) - self.start_s) / self.control_period_s + 1e-9).astype(int)
         return self.torques_Nm[np.clip(knots, 0, len(self.torques_Nm) - 1)]
 
-    def command(self, time_s: float, state: np.ndarray, scene: Scene, data: mujoco.MjData) -> np.ndarray:
-        """u(time_s) for the estimated state (mjSTATE_FULLPHYSICS of `scene`'s model); `data` is scratch."""
+    def command(self, time_s: float, state: np.ndarray, scene: Scene) -> np.ndarray:
+        """u(time_s) for the estimated state (mjSTATE_FULLPHYSICS of `scene`'s model)."""
         steps = len(self.reference) - 1
         step = int(np.clip(np.floor((time_s - self.start_s) / self.timestep_s + 1e-9), 0, steps))
         per_knot = steps // len(self.torques_Nm)
@@ -53,11 +53,11 @@ class Policy:
         fraction = (step - knot * per_knot) / per_knot
         gain = self.gains[knot] if knot + 1 >= len(self.gains) else \
             (1.0 - fraction) * self.gains[knot] + fraction * self.gains[knot + 1]
-        deviation = state_difference(scene, data, state, self.reference[step])
+        deviation = state_difference(scene, state, self.reference[step])
         return np.clip(self.torques_Nm[knot] + gain @ deviation, -scene.torque_limit, scene.torque_limit)
 
 
-def state_difference(scene: Scene, data: mujoco.MjData, state: np.ndarray, reference: np.ndarray) -> np.ndarray:
+def state_difference(scene: Scene, state: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """state - reference in the tangent space (2 nv): position differences by mj_differentiatePos, then the
     velocity differences."""
     model = scene.model
@@ -67,6 +67,12 @@ def state_difference(scene: Scene, data: mujoco.MjData, state: np.ndarray, refer
     mujoco.mj_differentiatePos(model, difference[:nv], 1.0, reference[q:q + nq], state[q:q + nq])
     difference[nv:] = state[r:r + nv] - reference[r:r + nv]
     return difference
+
+
+def hold_torques(scene: Scene, data: mujoco.MjData, kp: np.ndarray, kd: np.ndarray, hold_q: np.ndarray,
+                 q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+    """A joint servo holding hold_q at rest, plus the arm's bias forces: the total torques of a robot's hold."""
+    return kp * (hold_q - q) - kd * qdot + bias_torques(scene, data, q, qdot)
 
 
 def bias_torques(scene: Scene, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:

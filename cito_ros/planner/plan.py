@@ -110,8 +110,8 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         joint_range_excess_rad=range_excess,
         final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(trajectory.final_state)[:3])),
         rest_object_speed_m_s=math.nan if rest is None else simulator.scene.object_speed_m_s(rest.final_state),
-        steady_reach_margin_m=push_limits.steady_reach_m(discovery.scene, discovery.initial_state)
-        - float(np.hypot(*task.target_position_m[:2])),
+        steady_reach_margin_m=push_limits.steady_reach_margin_m(discovery.scene, discovery.initial_state,
+                                                                task.target_position_m),
         solve_time_s=outcome.solve_time_s,
         setup_time_s=outcome.setup_s,
         rollout_time_s=sum(record.rollout_s for record in outcome.stages),

@@ -19,7 +19,6 @@ fastest speed the joint limits allow comes to rest one MuJoCo slide further on.
 """
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from dataclasses import dataclass
 
@@ -185,6 +184,11 @@ def farthest(limits: list[PushLimit], contact: str) -> PushLimit:
 _STEADY_REACH: dict[SceneConfig, float] = {}
 
 
+def steady_reach_margin_m(scene: Scene, initial_state: np.ndarray, target_position_m) -> float:
+    """The steady push reach less the target's horizontal distance from the arm base: positive inside it."""
+    return steady_reach_m(scene, initial_state) - float(np.hypot(*np.asarray(target_position_m)[:2]))
+
+
 def steady_reach_m(scene: Scene, initial_state: np.ndarray, margin_rad: float = MARGIN_RAD) -> float:
     """The farthest from the arm base (horizontally) a push whose plate holds its height and its face
     along the push can leave the object's centre: the largest, over face_heights_m, of the farthest such
@@ -192,7 +196,7 @@ def steady_reach_m(scene: Scene, initial_state: np.ndarray, margin_rad: float = 
     object released there at fastest_push_m_s (simulated from initial_state, the object at rest and the
     arm clear of it). Cached per scene description, the object's pose aside."""
     config = scene.config
-    key = dataclasses.replace(config, object=dataclasses.replace(config.object, position_m=(0.0, 0.0), yaw_rad=0.0))
+    key = config.object_pose_aside
     if key not in _STEADY_REACH:
         model, data = scene.model, mujoco.MjData(scene.model)
         low, high = _joint_bounds(scene, margin_rad)

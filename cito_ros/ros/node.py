@@ -291,8 +291,7 @@ class PlannerNode(Node):
 
     def _scene_markers(self, scene: Scene) -> SceneMarkers:
         """The marker template of a scene (its object's pose aside), made once; on the recorder's thread."""
-        config = scene.config
-        key = dataclasses.replace(config, object=dataclasses.replace(config.object, position_m=(0.0, 0.0), yaw_rad=0.0))
+        key = scene.config.object_pose_aside
         if key not in self._markers:
             self._markers[key] = SceneMarkers(scene, self.frame_id)
         return self._markers[key]

@@ -27,7 +27,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
-from cito_ros.execution.policy import bias_torques
+from cito_ros.execution.policy import hold_torques
 from cito_ros.execution.world import Mismatch, SimulatedWorld
 from cito_ros.model.scene import ARM_JOINTS, start_configuration
 from cito_ros.ros.messages import pose_msg, time_msg
@@ -105,8 +105,7 @@ class SimRobot(Node):
             return self._command[1]
         if self._held is None:
             self._held = joints.q.copy()
-        return self._kp * (self._held - joints.q) - self._kd * joints.qdot + \
-            bias_torques(self.world.scene, self._data, joints.q, joints.qdot)
+        return hold_torques(self.world.scene, self._data, self._kp, self._kd, self._held, joints.q, joints.qdot)
 
     def _run(self) -> None:
         world = self.world

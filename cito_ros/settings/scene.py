@@ -53,6 +53,12 @@ class SceneConfig:
     def name(self) -> str:
         return Path(self.source).stem
 
+    @property
+    def object_pose_aside(self) -> "SceneConfig":
+        """This scene with its object at the origin unturned: a key for what depends on the scene but not on
+        where its object stands (the steady push reach, the marker template)."""
+        return dataclasses.replace(self, object=dataclasses.replace(self.object, position_m=(0.0, 0.0), yaw_rad=0.0))
+
     @classmethod
     def load(cls, name_or_path: str | Path = DEFAULT_SCENE) -> "SceneConfig":
         """Load `config/scenes/<name>.yaml`, or a YAML file given by path."""

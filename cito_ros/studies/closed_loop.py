@@ -51,7 +51,7 @@ def steady_margin_m(goal: Goal, settings: Settings) -> float:
     """The goal's steady_reach_margin_m in the planner's model (the zone it is judged in)."""
     posed = build_problem(settings, PushRequest("vscm", start_q=start_configuration(goal.beta),
                                                 target_position_m=np.array(goal.target_position_m)))
-    return push_limits.steady_reach_m(posed.scene, posed.initial_state) - math.hypot(*goal.target_position_m)
+    return push_limits.steady_reach_margin_m(posed.scene, posed.initial_state, goal.target_position_m)
 
 
 def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Settings) -> dict[str, Any]:
