@@ -134,3 +134,29 @@ def test_a_cancelled_execution_holds_the_arm(settings):
         world.step(executor.command(world.time_s))
         deliver(executor, world)
     assert np.abs(world.joints().qdot).max() < 0.05 and executor.phase is Phase.DONE
+
+
+def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_cube_before_the_next(settings):
+    """Judged against a goal tolerance no push meets, the first push misses: the arm goes back to where the
+    execution started, along a path within the retreat's speed limit, the cube left where it came to rest, and
+    the next push is planned from there."""
+    strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
+    home = start_configuration(7)
+    executor, world = started(strict)
+    retreat_began = None
+    while executor.pushes < 2 and world.time_s < 25:
+        executor.work(world.time_s)
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+        if executor.phase is Phase.RETREATING and retreat_began is None:
+            retreat_began, cube_before = world.time_s, world.true_object_pose()[0]
+            limit = strict.executor.retreat_speed_fraction * world.scene.velocity_limit
+            assert np.all(np.abs(executor._retreat.at(executor._retreat.start_s + 0.5 * (
+                executor._retreat.end_s - executor._retreat.start_s))[1]) <= limit + 1e-9)
+        if executor.phase is Phase.PLANNING and retreat_began is not None:
+            break
+    assert retreat_began is not None and executor.pushes == 1
+    assert np.abs(world.joints().q - home).max() < 0.05  # back where it started (the servo's error)
+    assert np.linalg.norm(world.true_object_pose()[0][:2] - cube_before[:2]) < 0.003  # the cube not dragged along
+    job = executor.job(world.time_s)
+    assert job is not None and job.kind == "plan" and np.abs(job.q - home).max() < 0.05

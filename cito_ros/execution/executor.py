@@ -10,7 +10,8 @@ takes it with that time, and `command` swaps it in then.
 
 Phases: `planning` (the arm held while a push is planned), `pushing` (the policy, replanned), `settling` (the arm
 held at the push's end until the cube has come to rest; then the push is judged by the camera: at the goal,
-done; else, while pushes and time are left, a new push is planned from there), `done`. Measurements older than
+done; else, while pushes and time are left, `retreating`: the arm goes back along a minimum-jerk path to where
+the execution started, and a new push is planned from there), `done`. Measurements older than
 executor.stale_after_s, a cancel, the time limit or a push that cannot be planned end the execution with the arm
 held where it is.
 """
@@ -42,6 +43,7 @@ class Phase(str, enum.Enum):
     PLANNING = "planning"
     PUSHING = "pushing"
     SETTLING = "settling"
+    RETREATING = "retreating"
     DONE = "done"
 
 
@@ -100,6 +102,8 @@ class Executor:
         self._pending: Work | None = None
         self._push_end_s = math.nan
         self._hold_q: np.ndarray | None = None
+        self._home_q: np.ndarray | None = None    # the arm where the execution started: each push starts there
+        self._retreat: Retreat | None = None
         self._settle_since_s = math.nan
         self._joints: JointReading | None = None
         self._pose_arrival_s = -math.inf
@@ -119,7 +123,7 @@ class Executor:
         if self.started_s is None:
             self.started_s = reading.stamp_s
         if self._hold_q is None:
-            self._hold_q = reading.q.copy()
+            self._hold_q, self._home_q = reading.q.copy(), reading.q.copy()
 
     def on_pose(self, reading: PoseReading, arrival_s: float) -> None:
         self.estimator.add_pose(reading)
@@ -135,11 +139,14 @@ class Executor:
         with self._lock:
             if self.phase is not Phase.DONE:
                 self._advance(now_s)
+            kp, kd = self.model.servo_gains
             if self.phase is Phase.PUSHING:
                 state = self.estimator.state(joints, now_s)
                 u = self.policy.command(now_s, state, self.model.scene)
+            elif self.phase is Phase.RETREATING:
+                q, qdot = self._retreat.at(now_s)
+                u = kp * (q - joints.q) + kd * (qdot - joints.qdot)
             else:
-                kp, kd = self.model.servo_gains
                 u = kp * (self._hold_q - joints.q) - kd * joints.qdot
             u = self._within_speed_limits(u, joints.qdot) + \
                 bias_torques(self.model.scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
@@ -181,7 +188,13 @@ class Executor:
                 return self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                            f"{100 * position:.2f} cm and {orientation:.3f} rad from "
                                                            f"the goal", None)
-            self.phase = Phase.PLANNING  # another push, from where the cube rests
+            # another push, from where the cube rests: planned from the start pose, which the planner's scripted
+            # starts are made for (from beside the cube a push starts against it)
+            self.phase = Phase.RETREATING
+            self._retreat = Retreat.between(now_s, joints.q, self._home_q, self.model.scene.velocity_limit,
+                                            self.settings.executor)
+        if self.phase is Phase.RETREATING and now_s >= self._retreat.end_s:
+            self.phase, self._hold_q = Phase.PLANNING, self._home_q.copy()
 
     def _end(self, ending: Ending, message: str, hold_q: np.ndarray | None) -> None:
         self.phase, self.ending, self.message, self._pending = Phase.DONE, ending, message, None
@@ -261,6 +274,32 @@ class Executor:
     def replan_rate_hz(self) -> float:
         """Replans a second while replanning back to back: 1 / the median compute time of one (NaN: none)."""
         return 1.0 / float(np.median(self.replan_seconds)) if self.replan_seconds else math.nan
+
+
+@dataclass(frozen=True)
+class Retreat:
+    """A minimum-jerk joint path from one pose to another, on the robot's clock."""
+
+    start_s: float
+    end_s: float
+    from_q: np.ndarray
+    to_q: np.ndarray
+
+    @classmethod
+    def between(cls, start_s: float, from_q: np.ndarray, to_q: np.ndarray, velocity_limit: np.ndarray,
+                settings) -> Retreat:
+        """Slow enough that no joint passes settings.retreat_speed_fraction of its limit (a minimum-jerk path's
+        peak speed is 1.875 times its mean), and at least settings.retreat_min_s long."""
+        fastest = float(np.max(1.875 * np.abs(to_q - from_q) / (settings.retreat_speed_fraction * velocity_limit)))
+        return cls(start_s, start_s + max(settings.retreat_min_s, fastest), from_q.copy(), to_q.copy())
+
+    def at(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The joint positions and velocities at time_s."""
+        duration = self.end_s - self.start_s
+        s = min(max((time_s - self.start_s) / duration, 0.0), 1.0)
+        step = self.to_q - self.from_q
+        return self.from_q + (10 * s**3 - 15 * s**4 + 6 * s**5) * step, \
+            (30 * s**2 - 60 * s**3 + 30 * s**4) / duration * step
 
 
 @dataclass(frozen=True)

@@ -66,16 +66,18 @@ class PushModel:
     def policy(self, start_s: float, state: np.ndarray, torques: np.ndarray,
                gains: np.ndarray | None = None, problem: PushProblem | None = None) -> Policy:
         """The policy of knot torques from `state` at start_s: their rollout is the reference. Its gains on the
-        cube's state are the backward pass's (given, or from a backward pass at the torques); on the arm's
-        joints, the executor's servo PD (servo_gains): the backward pass's own arm gains
-        are soft where the cost does not care where the arm is, and a heavier or grippier cube than the model's
-        then pushes the arm off its path."""
+        cube's state are the backward pass's (given, or from a backward pass at the torques) times
+        executor.object_gain_scale; on the arm's joints, the executor's servo PD (servo_gains): the backward
+        pass's own arm gains are soft where the cost does not care where the arm is, and a heavier or grippier
+        cube than the model's then pushes the arm off its path."""
         problem = self.problem(state, len(torques), torques) if problem is None else problem
         z = problem.with_torques(torques)
         evaluation = problem.evaluate(z)
+        scale, nx = self.settings.executor.object_gain_scale, 2 * self.scene.model.nv
         if gains is None:
-            gains = feedback_gains(problem, z, self.settings.executor.feedback_regularization)
-        gains = gains[:, :7, :].copy()
+            gains = feedback_gains(problem, z, self.settings.executor.feedback_regularization) if scale > 0 else \
+                np.zeros((len(torques), 7, nx))
+        gains = scale * gains[:, :7, :]
         nv, arm = self.scene.model.nv, self.scene.arm_dof_adr
         gains[:, :, arm] = 0.0
         gains[:, :, nv + arm] = 0.0

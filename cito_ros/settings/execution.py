@@ -56,6 +56,13 @@ class ExecutorSettings:
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
+    object_gain_scale: float = setting("the plan's feedback gains on the cube's state: this times the backward pass's "
+                                       "(0: the arm's servo alone; docs/experiments.md has what the full gains did)",
+                                       minimum=0.0)
+    retreat_speed_fraction: float = setting("after a push that missed, the arm goes back to where the execution "
+                                            "started, no joint faster than this fraction of its velocity limit",
+                                            positive=True)
+    retreat_min_s: float = setting("and taking at least this long (s)", positive=True)
     servo_gain_scale: float = setting("the executor's joint servo gains: this times tracking.kp and kd (a servo behind "
                                       "a measurement and command delay of milliseconds needs far lower gains than "
                                       "the planner's zero-delay controller)", positive=True)
