@@ -3,87 +3,22 @@ client and subscribers in this one, over Fast DDS on an isolated domain. One exe
 stale measurements hold the arm, and every execution's bag reads back."""
 from __future__ import annotations
 
-import math
 import os
-import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from action_msgs.msg import GoalStatus
 from cito_msgs.action import ExecutePush
-from rclpy.action import ActionClient
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import JointState
+
+from cito_ros.execution.executor import ExecuteGoal
+from cito_ros.ros.sim_session import Operator, spawn, stop
 
 from node_harness import read_with_mcap, read_with_rosbags, wait_for_bag
 
-BIN = Path(sys.executable).parent
 Result = ExecutePush.Result
-
-
-def spawn(program: str, domain: int, *parameters: str) -> subprocess.Popen:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    return subprocess.Popen([str(BIN / program), "--ros-args", *(a for p in parameters for a in ("-p", p))], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-
-def stop(process: subprocess.Popen) -> None:
-    if process.poll() is None:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-
-
-class Operator:
-    """An ExecutePush action client and a /joint_states subscriber on `domain`."""
-
-    def __init__(self, domain: int):
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node("test_operator", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.action = ActionClient(self.node, ExecutePush, "/cito/execute_push")
-        self.joints: list[JointState] = []
-        self.feedback: list = []
-
-    def listen(self) -> None:
-        """From now on, the joint states too."""
-        self.node.create_subscription(JointState, "/joint_states", self.joints.append,
-                                      QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
-
-    def spin(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.02)
-
-    def wait(self, future, timeout_s: float = 120.0):
-        deadline = time.monotonic() + timeout_s
-        while not future.done() and time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.02)
-        assert future.done(), "no answer from the executor node"
-        return future.result()
-
-    def send(self, x: float = 1.09, y: float = 0.03, yaw: float = 0.0):
-        goal = ExecutePush.Goal(contact_model="vscm")
-        goal.target_pose.position.x, goal.target_pose.position.y, goal.target_pose.position.z = x, y, 0.1
-        goal.target_pose.orientation.z, goal.target_pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
-        return self.wait(self.action.send_goal_async(goal, feedback_callback=lambda m: self.feedback.append(
-            m.feedback)), 30.0)
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
+GOAL = ExecuteGoal((1.09, 0.03), 0.0, "vscm")  # 10 cm from q0(beta = 7), inside the steady push reach
 
 
 @pytest.fixture(scope="module")
@@ -110,9 +45,9 @@ def robot(tmp_path_factory):
 
 def test_a_second_goal_is_rejected_while_one_runs_and_a_cancel_holds_the_arm(robot):
     operator, sim, node = robot
-    running = operator.send()
+    running = operator.send(GOAL)
     assert running.accepted
-    assert not operator.send().accepted  # one execution at a time
+    assert not operator.send(GOAL).accepted  # one execution at a time
     operator.spin(1.0)
     answer = operator.wait(running.cancel_goal_async(), 30.0)
     assert len(answer.goals_canceling) == 1
@@ -120,7 +55,7 @@ def test_a_second_goal_is_rejected_while_one_runs_and_a_cancel_holds_the_arm(rob
     assert result.status == GoalStatus.STATUS_CANCELED, result.result.message
     assert result.result.status == Result.STATUS_CANCELLED and not result.result.success
     assert "held" in result.result.message
-    operator.listen()
+    operator.joints.clear()
     operator.spin(1.5)  # after the cancel the arm is held: it comes to rest and stays
     speeds = np.array([np.abs(m.velocity).max() for m in operator.joints[-40:]])
     assert len(speeds) == 40 and speeds.max() < 0.05
@@ -130,12 +65,12 @@ def test_a_second_goal_is_rejected_while_one_runs_and_a_cancel_holds_the_arm(rob
 def test_an_execution_is_recorded_and_its_bag_reads_back(robot):
     operator, _, _ = robot
     operator.feedback.clear()
-    handle = operator.send()
+    handle = operator.send(GOAL)
     assert handle.accepted
     result = operator.wait(handle.get_result_async()).result
     assert result.status in (Result.STATUS_SUCCEEDED, Result.STATUS_TASK_NOT_ACHIEVED, Result.STATUS_TIME_LIMIT,
                              Result.STATUS_INVALID_REQUEST), result.message
-    assert operator.feedback and {f.phase for f in operator.feedback} <= {"planning", "pushing", "settling", "done"}
+    assert operator.feedback and {f.phase for f in operator.feedback} <= {"planning", "pushing", "settling", "retreating", "done"}
     bag = Path(result.bag_path)
     assert wait_for_bag(bag)
     for reader in (read_with_mcap, read_with_rosbags):
@@ -157,7 +92,7 @@ def test_stale_measurements_stop_the_execution_safely(tmp_path):
     try:
         assert operator.action.wait_for_server(timeout_sec=60.0)
         operator.spin(1.0)
-        handle = operator.send()
+        handle = operator.send(GOAL)
         assert handle.accepted
         deadline = time.monotonic() + 30.0
         while not operator.feedback and time.monotonic() < deadline:  # the execution has started

@@ -171,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
     closed.add_argument("--n", type=positive_int, default=30, help="targets goals (each in every world, both ways)")
     closed.add_argument("--seed", type=int, default=0)
     closed.add_argument("--contact-model", default="vscm", choices=asks.MODELS)
+    closed.add_argument("--ros", action="store_true", help="closed loop through cito-executor-node and "
+                        "cito-sim-robot over DDS, one episode after another in real time (else: in process, on Ray)")
     closed.add_argument("--out", type=Path, default=Path("out/closed_loop"),
                         help="reports, and each finished episode as it arrives (a rerun skips those)")
     closed.add_argument("--json", action="store_true", help="print the summary and every episode")
@@ -308,9 +310,17 @@ def main(argv: list[str] | None = None) -> int:
 
         settings = load_settings()
         goals, _ = targets_module.draw_goals(args.n, args.seed, settings)
-        jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers))
-        records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
-                                  out=args.out / f"seed{args.seed}", label="closed loop")
+        if args.ros:
+            from cito_ros.cli.closed_loop_ros import ros_records
+
+            bar = progress_bar(2 * len(goals) * len(closed_loop.WORLDS), "closed loop (ros)", "episode")
+            records = ros_records(goals, args.contact_model, settings, args.out / "bags",
+                                  progress=lambda name: advance(bar, bar.n + 1, name))
+            bar.close()
+        else:
+            jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers))
+            records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
+                                      out=args.out / f"seed{args.seed}", label="closed loop")
         summary = closed_loop.report(records)
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "closed_loop.md").write_text(closed_loop.markdown(summary))

@@ -133,6 +133,8 @@ class SimRobot(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
+    # the stepping thread must get the GIL back as soon as a step is due, not after the callbacks' 5 ms default
+    sys.setswitchinterval(5e-4)
     return run(SimRobot, "cito-sim-robot", argv, params_file=False, threads=2)
 
 

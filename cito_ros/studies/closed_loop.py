@@ -109,6 +109,9 @@ def markdown(summary: dict[str, Any]) -> str:
     def cm(entry) -> str:
         return "-" if entry["median"] is None else f"{100 * entry['median']:.2f} / {100 * entry['p90']:.2f}"
 
+    def whole(entry) -> str:  # a count's median ("-": not counted, as through the nodes)
+        return "-" if entry["median"] is None else f"{entry['median']:.0f}"
+
     lines = []
     for name, title in (("steady", "Goals inside the steady push reach"),
                         ("strike", "Goals beyond it (the near-reach share, reached only by a strike: best effort)")):
@@ -125,7 +128,7 @@ def markdown(summary: dict[str, Any]) -> str:
                     f"| {world} | {mode.replace('_', ' ')} | {e['success']}/{e['episodes']} "
                     f"({e['success'] / e['episodes']:.0%}) | {e['success_tight']}/{e['episodes']} "
                     f"({e['success_tight'] / e['episodes']:.0%}) | {cm(e['position_error_m'])} | "
-                    f"{e['pushes']['median']:.0f} | {e['replans']['median']:.0f} | "
+                    f"{whole(e['pushes'])} | {whole(e['replans'])} | "
                     f"{'-' if rate is None else f'{rate:.1f}'} | {'-' if compute is None else f'{1e3 * compute:.0f}'} | "
                     f"{speed['median']:.2f} / {speed['p90']:.2f} |")
         lines.append("")

@@ -1,0 +1,167 @@
+"""Closed-loop executions through the ROS graph, as a robot stack runs them: cito-sim-robot spawned with a world's
+differences from the planner's model, cito-executor-node, and an ExecutePush action client in this process that
+judges every execution on the simulator's truth (/sim/true_object_pose, the cube at rest). Each program is a
+process of its own, talking over DDS on one domain of this host. `cito-bench closed-loop --ros`, the demo and the
+executor's DDS tests run executions through it.
+"""
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from cito_msgs.action import ExecutePush
+from geometry_msgs.msg import PoseStamped
+from rclpy.action import ActionClient
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from cito_ros.execution.estimator import yaw_of
+from cito_ros.execution.executor import ExecuteGoal
+from cito_ros.execution.world import Mismatch
+
+BIN = Path(sys.executable).parent
+REST_WAIT_S = 3.0   # after an execution, the longest wait for the true cube to come to rest
+RESULT_TIMEOUT_S = 120.0
+
+
+def spawn(program: str, domain: int, *parameters: str, quiet: bool = False) -> subprocess.Popen:
+    """One of this package's programs on `domain` of this host, with -p parameters (its output piped, or
+    dropped when quiet)."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    return subprocess.Popen([str(BIN / program), "--ros-args", *(a for p in parameters for a in ("-p", p))], env=env,
+                            stdout=subprocess.DEVNULL if quiet else subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+
+
+def stop(process: subprocess.Popen) -> None:
+    """SIGINT, as a launch system stops a node; killed after 20 s."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+
+def robot_parameters(mismatch: Mismatch, beta: float, seed: int) -> list[str]:
+    """cito-sim-robot's parameters for a world with `mismatch`, the arm at q0(beta)."""
+    return [f"beta:={float(beta)}", f"friction_scale:={mismatch.friction_scale}", f"mass_scale:={mismatch.mass_scale}",
+            f"offset_x_m:={mismatch.offset_m[0]}", f"offset_y_m:={mismatch.offset_m[1]}",
+            f"offset_yaw_rad:={mismatch.offset_yaw_rad}", f"pose_noise_m:={mismatch.pose_noise_m}",
+            f"yaw_noise_rad:={mismatch.yaw_noise_rad}", f"latency_s:={mismatch.latency_s}",
+            f"camera_rate_hz:={mismatch.camera_rate_hz}", f"seed:={int(seed)}"]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """An execution's result and the simulator's truth after it."""
+
+    result: ExecutePush.Result
+    position_error_m: float          # the true cube at rest (or where it was after REST_WAIT_S)
+    orientation_error_rad: float
+    at_rest: bool
+    max_joint_speed: np.ndarray      # per joint over the execution, from /joint_states (rad/s)
+    phases: tuple[str, ...]          # every phase the feedback showed, in order of first appearance
+    round_trip_s: float              # from the goal sent to its result
+
+
+class Operator:
+    """An ExecutePush action client, /joint_states and /sim/true_object_pose subscribers on `domain`."""
+
+    def __init__(self, domain: int):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node("cito_operator", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.action = ActionClient(self.node, ExecutePush, "/cito/execute_push")
+        self.joints: list[JointState] = []
+        self.feedback: list = []
+        self.true_poses: list[tuple[float, np.ndarray, float]] = []  # (stamp, position, yaw)
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(JointState, "/joint_states", self.joints.append, qos)
+        self.node.create_subscription(PoseStamped, "/sim/true_object_pose", self._on_true_pose, qos)
+
+    def _on_true_pose(self, message: PoseStamped) -> None:
+        p, o = message.pose.position, message.pose.orientation
+        stamp = message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
+        self.true_poses = [*self.true_poses[-9:], (stamp, np.array([p.x, p.y, p.z]),
+                                                   yaw_of(np.array([o.w, o.x, o.y, o.z])))]
+
+    def spin(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def wait(self, future, timeout_s: float = RESULT_TIMEOUT_S):
+        deadline = time.monotonic() + timeout_s
+        while not future.done() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+        assert future.done(), "no answer from the executor node"
+        return future.result()
+
+    def wait_for_robot(self, timeout_s: float = 60.0) -> bool:
+        """Whether the action server is up and the robot's joint states and true poses are flowing."""
+        if not self.action.wait_for_server(timeout_sec=timeout_s):
+            return False
+        self.joints.clear()
+        self.true_poses.clear()
+        deadline = time.monotonic() + timeout_s
+        while (len(self.joints) < 10 or not self.true_poses) and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+        return len(self.joints) >= 10 and bool(self.true_poses)
+
+    def send(self, goal: ExecuteGoal, z_m: float = 0.1):
+        """The goal's handle (accepted or not)."""
+        message = ExecutePush.Goal(contact_model=goal.contact_model, scene=goal.scene or "",
+                                   time_limit_s=goal.time_limit_s)
+        message.target_pose.position.x, message.target_pose.position.y = goal.target_position_m
+        message.target_pose.position.z = z_m
+        yaw = goal.target_yaw_rad
+        message.target_pose.orientation.z, message.target_pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+        return self.wait(self.action.send_goal_async(message, feedback_callback=lambda m: self.feedback.append(
+            m.feedback)), 30.0)
+
+    def execute(self, goal: ExecuteGoal, rest_speed_m_s: float) -> Outcome:
+        """One execution to its end, then the true cube awaited at rest (at most REST_WAIT_S)."""
+        self.feedback.clear()
+        self.joints.clear()
+        began = time.monotonic()
+        handle = self.send(goal)
+        if not handle.accepted:
+            raise RuntimeError("the executor node rejected the goal")
+        result = self.wait(handle.get_result_async()).result
+        round_trip = time.monotonic() - began
+        speeds = np.max([np.abs(m.velocity) for m in self.joints], axis=0) if self.joints else np.zeros(7)
+        at_rest, deadline = False, time.monotonic() + REST_WAIT_S
+        while time.monotonic() < deadline:
+            self.spin(0.1)
+            if self.true_speed_m_s() < rest_speed_m_s:
+                at_rest = True
+                break
+        _, position, yaw = self.true_poses[-1]
+        position_error, orientation_error = goal.errors(position[:2], yaw)
+        phases = tuple(dict.fromkeys(f.phase for f in self.feedback))
+        return Outcome(result, position_error, orientation_error, at_rest, speeds, phases, round_trip)
+
+    def true_speed_m_s(self) -> float:
+        """The true cube's centre speed over the last two true poses (inf before two)."""
+        if len(self.true_poses) < 2:
+            return math.inf
+        (t0, p0, _), (t1, p1, _) = self.true_poses[-2:]
+        return float(np.linalg.norm(p1 - p0) / (t1 - t0)) if t1 > t0 else math.inf
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
