@@ -1,10 +1,14 @@
 """cito-demo: the main job. Starts the planner node, sends a /cito/plan_push action goal from a
 client in this (separate) process for the default scene (VSCM, the configured beta, the object
 pushed DEMO_PUSH_M along +x, inside the steady push reach; or --target), shows the feedback as a
-progress bar, prints a summary, leaves the bag, stops the node and exits 0 when a plan came back.
+progress bar and prints a summary. Then the same push on a robot whose world is not the model (DEMO_WORLD):
+closed loop, cito-sim-robot and cito-executor-node over DDS, the goal sent as an ExecutePush action; and open
+loop, the plan from where the planner was told the cube is, executed in the same world in this process by a
+joint trajectory controller. Both are judged on the simulator's true cube at rest and printed side by side.
+Leaves the bags, stops the nodes and exits 0 when a plan came back and the execution ran.
 
     cito-demo [--contact-model {cccm,scm,vscm}] [--target X Y YAW] [--bag-directory DIR] [--timeout S]
-              [--cancel-after S]
+              [--cancel-after S] [--no-execute]
 """
 from __future__ import annotations
 
@@ -25,6 +29,10 @@ from cito_ros.planner.results import zone
 from cito_ros.settings import load_settings
 
 DEMO_PUSH_M = 0.15  # from the default scene's cube, 5 cm inside the steady push reach
+# the executions' world: a heavier, grippier cube than the model's, 15 mm off along x and y and turned 0.1 rad
+# from where the planner is told, seen by a camera with 1 mm and 0.01 rad of noise, 30 ms late
+DEMO_WORLD = dict(friction_scale=1.5, mass_scale=2.0, offset_m=(0.015, 0.015), offset_yaw_rad=0.1,
+                  pose_noise_m=0.001, yaw_noise_rad=0.01, latency_s=0.03)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds to wait for the plan")
     parser.add_argument("--cancel-after", type=float, default=None, metavar="S",
                         help="cancel the goal after S seconds (the best plan so far comes back)")
+    parser.add_argument("--no-execute", action="store_true", help="plan only: no execution in the mismatched world")
     args = parser.parse_args(argv)
 
     # an isolated graph: a random domain on this host only, unless the caller chose one
@@ -45,13 +54,62 @@ def main(argv: list[str] | None = None) -> int:
     node = subprocess.Popen([str(node_bin), "--ros-args", "-p", f"node.bag_directory:={args.bag_directory.resolve()}",
                              "--log-level", "warn"], env=os.environ.copy())
     try:
-        return _call(args)
+        code = _call(args)
     finally:
         node.send_signal(signal.SIGINT)
         try:
             node.wait(timeout=10)
         except subprocess.TimeoutExpired:
             node.kill()
+    return code if code or args.no_execute else _execute(args)
+
+
+def _goal(args, settings) -> tuple[float, float, float]:
+    x, y = settings.scene.object.position_m
+    return (x + DEMO_PUSH_M, y, 0.0) if args.target is None else tuple(args.target)
+
+
+def _execute(args) -> int:
+    """The push closed loop through the nodes and open loop in process, in DEMO_WORLD, side by side."""
+    from cito_ros.execution.episode import run_open_loop
+    from cito_ros.execution.executor import ExecuteGoal
+    from cito_ros.execution.world import Mismatch, SimulatedWorld
+    from cito_ros.model.scene import start_configuration
+    from cito_ros.ros.sim_session import Operator, robot_parameters, spawn, stop
+
+    settings = load_settings()
+    x, y, yaw = _goal(args, settings)
+    goal = ExecuteGoal((x, y), yaw, args.contact_model)
+    world = Mismatch("demo", **DEMO_WORLD)
+    told = settings.scene.object
+    print(f"\nexecuting it where the cube is heavier (mass x{world.mass_scale:g}) and grippier (friction "
+          f"x{world.friction_scale:g}) than the model, {1000 * world.offset_m[0]:.0f} mm / {1000 * world.offset_m[1]:.0f} "
+          f"mm / {world.offset_yaw_rad:g} rad off, seen by a noisy camera {1000 * world.latency_s:.0f} ms late:")
+    opened = run_open_loop(settings, goal, SimulatedWorld(settings, world, start_configuration(settings.beta)),
+                           (tuple(told.position_m), told.yaw_rad))
+    domain = int(os.environ["ROS_DOMAIN_ID"])
+    sim = spawn("cito-sim-robot", domain, *robot_parameters(world, settings.beta, 0), quiet=True)
+    node = spawn("cito-executor-node", domain, f"node.bag_directory:={args.bag_directory.resolve()}", quiet=True)
+    operator = Operator(domain)
+    try:
+        if not operator.wait_for_robot():
+            print("cito-demo: the simulated robot or the executor node did not come up", file=sys.stderr)
+            return 1
+        closed = operator.execute(goal, settings.task.rest_speed_m_s)
+    finally:
+        operator.close()
+        stop(node)
+        stop(sim)
+    result = closed.result
+    print(f"  {'':24}{'open loop':>22}{'closed loop':>22}")
+    print(f"  {'at the goal (2 cm, 0.15 rad)':<28}{'yes' if opened.success else 'no':>18}"
+          f"{'yes' if result.success and closed.at_rest else 'no':>22}")
+    print(f"  {'true error at rest':<28}{100 * opened.position_error_m:>11.2f} cm {opened.orientation_error_rad:.3f} rad"
+          f"{100 * closed.position_error_m:>11.2f} cm {closed.orientation_error_rad:.3f} rad")
+    print(f"  closed loop: {result.message}; {result.replans} replans ({result.replan_rate_hz:.1f} Hz); "
+          f"{closed.round_trip_s:.1f} s from goal to result")
+    print(f"  bag                {result.bag_path}")
+    return 0
 
 
 def _call(args) -> int:
@@ -60,8 +118,7 @@ def _call(args) -> int:
     from rclpy.action import ActionClient
 
     settings = load_settings()
-    x, y = settings.scene.object.position_m
-    target_x, target_y, yaw = (x + DEMO_PUSH_M, y, 0.0) if args.target is None else args.target
+    target_x, target_y, yaw = _goal(args, settings)
     goal = PlanPush.Goal()
     goal.target_pose.position.x, goal.target_pose.position.y = target_x, target_y
     goal.target_pose.position.z = TABLE_TOP_Z_M + settings.scene.object.half_size_m

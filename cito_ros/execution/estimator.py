@@ -71,6 +71,12 @@ class StateEstimator:
         ahead = max(now_s - stamp, 0.0)
         return last[1:3] + velocity[:2] * ahead, float(last[3] + velocity[2] * ahead)
 
+    def resting_pose(self) -> tuple[np.ndarray, float]:
+        """(x, y) and yaw of a cube at rest: the mean over the rest window's poses, the camera's noise averaged
+        down (a single pose carried forward by a velocity fitted through noise is off by millimetres)."""
+        poses = np.array(self._poses)
+        return poses[:, 1:3].mean(axis=0), float(poses[:, 3].mean())
+
     def state(self, joints: JointReading, now_s: float) -> np.ndarray:
         """The mjSTATE_FULLPHYSICS state of the scene's model at now_s (its time field 0)."""
         scene = self.scene

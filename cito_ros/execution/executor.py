@@ -179,7 +179,7 @@ class Executor:
             self.phase, self._hold_q, self._settle_since_s = Phase.SETTLING, joints.q.copy(), now_s
         if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
                 self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
-            position, orientation = self.errors(now_s)
+            position, orientation = self.goal.errors(*self.estimator.resting_pose())
             task = self.settings.task
             if position < task.success_position_error_m and orientation < task.success_orientation_error_rad:
                 return self._end(Ending.SUCCEEDED, f"the cube is {100 * position:.2f} cm and {orientation:.3f} rad "
@@ -208,9 +208,14 @@ class Executor:
                           None if self._joints is None else self._joints.q)
 
     def errors(self, now_s: float) -> tuple[float, float]:
-        """The cube's position and yaw error against the goal, as the camera sees it now."""
-        position, yaw = self.estimator.object_pose(now_s)
-        return self.goal.errors(position, yaw)
+        """The cube's position and yaw error against the goal, as the camera sees it now (at rest: averaged)."""
+        return self.goal.errors(*self.object_pose(now_s))
+
+    def object_pose(self, now_s: float) -> tuple[np.ndarray, float]:
+        """The cube's (x, y) and yaw as the camera sees it now: the rest window's mean when it is at rest."""
+        if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
+            return self.estimator.resting_pose()
+        return self.estimator.object_pose(now_s)
 
     # ------------------------------------------------------------------ planning
 
@@ -231,7 +236,7 @@ class Executor:
                 return None
             return Job("plan" if self.phase is Phase.PLANNING else "replan", now_s,
                        self.estimator.state(self._joints, now_s), self._joints.q.copy(),
-                       self.estimator.object_pose(now_s), self.time_limit_s - (now_s - self.started_s),
+                       self.object_pose(now_s), self.time_limit_s - (now_s - self.started_s),
                        self.policy, self._push_end_s)
 
     def accept(self, job: Job, outcome: Policy | Failure | None, elapsed_s: float) -> Work | None:
@@ -352,8 +357,10 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     try:
         result = plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
                            target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
-                           settings=settings.with_overrides({"solver.time_limit_s": max(min(
-                               job.time_left_s, settings.executor.plan_time_limit_s), 1.0)}))
+                           settings=settings.with_overrides({
+                               "solver.time_limit_s": max(min(job.time_left_s, settings.executor.plan_time_limit_s), 1.0),
+                               "tracking.world_friction_scales": settings.executor.world_friction_scales,
+                               "tracking.world_mass_scales": settings.executor.world_mass_scales}))
         start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
                               request).initial_state
     except ValueError as error:

@@ -116,8 +116,14 @@ class PushModel:
         guess = running.torques_Nm[knot:]
         problem = self.problem(state, knots, guess)
         executor = self.settings.executor
+        # from executor.replan_mu, raised at most executor.replan_regularizations times: past them the step is
+        # rejected and the running plan goes on (each raise is a forward pass, and a replan late by ten of them
+        # is no replan)
+        options = self.settings.solver.ilqr_options
+        mu_max = executor.replan_mu * options["mu_factor"] ** executor.replan_regularizations
         solver_settings = dataclasses.replace(self.settings.solver, max_iter=executor.replan_iterations,
-                                              time_limit_s=executor.replan_budget_s)
+                                              time_limit_s=executor.replan_budget_s, ilqr=tuple(
+                                                  {**options, "mu_initial": executor.replan_mu, "mu_max": mu_max}.items()))
         solver = IlqrSolver(solver_settings)
         monitor = IterationMonitor(solver_settings, time.perf_counter(), 0, 0.0, None, None, "replan", False)
         start = problem.evaluate(problem.with_torques(guess))

@@ -45,11 +45,11 @@ class Mismatch:
 
     def world_config(self, told: SceneConfig) -> SceneConfig:
         """The world's scene: `told` (the planner's) with the cube's friction, mass and pose changed."""
-        obj = told.object
-        x, y = obj.position_m
-        return dataclasses.replace(told, object=dataclasses.replace(
-            obj, friction=obj.friction * self.friction_scale, mass_kg=obj.mass_kg * self.mass_scale,
-            position_m=(x + self.offset_m[0], y + self.offset_m[1]), yaw_rad=obj.yaw_rad + self.offset_yaw_rad))
+        scaled = told.with_object_scaled(self.friction_scale, self.mass_scale)
+        x, y = told.object.position_m
+        return dataclasses.replace(scaled, object=dataclasses.replace(
+            scaled.object, position_m=(x + self.offset_m[0], y + self.offset_m[1]),
+            yaw_rad=told.object.yaw_rad + self.offset_yaw_rad))
 
 
 @dataclass(frozen=True)

@@ -102,6 +102,17 @@ class Simulator:
         self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
         self._data = [mujoco.MjData(self.model) for _ in range(nthread)]
         self.clock = PhaseClock()  # the time of the rollouts and linearizations on this simulator
+        self._worlds: dict[tuple[float, float], Simulator] = {}
+
+    def in_world(self, friction_scale: float, mass_scale: float) -> Simulator:
+        """This simulator where the object's friction and mass are these times the model's (one thread; built
+        once per pair): the same state layout, another world."""
+        key = (float(friction_scale), float(mass_scale))
+        if key not in self._worlds:
+            scene = Scene(self.scene.contact_model, self.scene.config.with_object_scaled(*key),
+                          native=self.scene.native)
+            self._worlds[key] = Simulator(scene, self.horizon_s, self.control_period_s, nthread=1)
+        return self._worlds[key]
 
     # ------------------------------------------------------------------ inputs
 

@@ -5,7 +5,8 @@ A stage without the virtual force ends as soon as its plan, executed, is at the 
 (`stages.goal_margin`), and the start with it. Every stage's torques, executed without the virtual
 force, are a candidate; the plan returned is the first start's that succeeds and that a PD joint
 trajectory controller follows (its tracked execution within tracking.max_error_increase_m of the
-executed error; with tracking.reference_offsets, also to the goal with its reference slightly off), or
+executed error; with tracking.reference_offsets, also to the goal with its reference slightly off; with
+tracking.world_*_scales, also in worlds whose object's friction and mass are not the model's), or
 else the best of all (within the arm's speed limits and ranges first, then at the goal, then followed,
 then followed with the offsets, then closest to it). A script's success short of the goal margin is the one
 exception: the scripts after it run too, and the best of them is returned.
@@ -45,6 +46,7 @@ class Executed:
     rest_object_speed_m_s: float               # after the hold
     tracked_position_error_m: float = math.nan  # by a PD joint trajectory controller; nan: not tracked
     offset_tracked_error_m: float = math.nan    # the worst with the reference off (tracking.reference_offsets)
+    world_tracked_errors: tuple = ()            # (position, orientation) tracked in each of tracking.world_*_scales
     motions: Motions | None = field(default=None, compare=False, repr=False)  # when tracked
 
     def rank(self, settings: Settings) -> tuple:
@@ -55,10 +57,15 @@ class Executed:
         trackable = self.tracked_position_error_m - self.position_error_m <= settings.tracking.max_error_increase_m
         # with reference offsets, followed to the goal also with the reference slightly off; ranked after
         # the nominal tracking, so that where no start gives such a plan the best is one the controller follows
+        # and in the other worlds of tracking.world_*_scales within both tolerances; among plans sturdy in none,
+        # the one whose worst world is nearest
         sturdy = not settings.tracking.reference_offsets or all(
             error < task.success_position_error_m for error in (self.tracked_position_error_m,
                                                                  self.offset_tracked_error_m))
-        return (beyond_limits, not at_goal, not trackable, not sturdy,
+        worst_world = max((_within(position, orientation, task) for position, orientation in self.world_tracked_errors),
+                          default=0.0)
+        sturdy = sturdy and worst_world < 1.0
+        return (beyond_limits, not at_goal, not trackable, not sturdy, worst_world,
                 self.position_error_m / task.success_position_error_m
                 + self.orientation_error_rad / task.success_orientation_error_rad)
 
@@ -67,7 +74,7 @@ class Executed:
         """Whether a rank ends the search: within the arm's limits, at the goal, and followed by a joint
         trajectory controller to within tracking.max_error_increase_m of the executed error (and with
         tracking.reference_offsets, to the goal under each offset and without)."""
-        beyond_limits, away, untrackable, fragile, _ = rank
+        beyond_limits, away, untrackable, fragile, _, _ = rank
         return not beyond_limits and not away and not untrackable and not fragile
 
     def reaches(self, settings: Settings) -> bool:
@@ -93,10 +100,19 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
                                                       gains.reference_offset_rad, seed=12345)  # the same for every plan
     tracked = tracking.track(simulator, executor.initial_state, trajectory, gains)
     tracked_rest = tracking.held_motion(simulator, tracked.final_state, gains)
+    worlds = tracking.world_errors(simulator, executor.initial_state, trajectory, gains, executor.task)
     return dataclasses.replace(executed, tracked_position_error_m=tracking.errors_at_rest(tracked_rest,
                                                                                           executor.task)[0],
                                offset_tracked_error_m=max(offset_errors, default=math.nan),
+                               world_tracked_errors=tuple(worlds),
                                motions=Motions(trajectory, rest, tracked, tracked_rest))
+
+
+def _within(position_m: float, orientation_rad: float, task) -> float:
+    """The larger of the errors as fractions of their success tolerances (below 1: at the goal; inf: NaN)."""
+    if not (math.isfinite(position_m) and math.isfinite(orientation_rad)):
+        return math.inf
+    return max(position_m / task.success_position_error_m, orientation_rad / task.success_orientation_error_rad)
 
 
 def judge(executor: PushProblem, evaluation, gains: TrackingSettings) -> Executed:

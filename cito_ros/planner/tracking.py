@@ -83,6 +83,20 @@ def held_motion(simulator: Simulator, state: np.ndarray, gains: TrackingSettings
     return pd_motion(simulator, state, np.tile(held, (steps, 1)), np.zeros((steps, len(held))), gains)
 
 
+def world_errors(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
+                 gains: TrackingSettings, task) -> list[tuple[float, float]]:
+    """The task's position and orientation errors at rest of `reference` tracked (and held) in each world of
+    gains.world_friction_scales and world_mass_scales other than the model's own (1, 1)."""
+    errors = []
+    for friction, mass in zip(gains.world_friction_scales, gains.world_mass_scales):
+        if friction == 1.0 and mass == 1.0:
+            continue
+        world = simulator.in_world(friction, mass)
+        tracked = track(world, initial_state, reference, gains)
+        errors.append(errors_at_rest(held_motion(world, tracked.final_state, gains), task))
+    return errors
+
+
 def errors_at_rest(held: Trajectory | None, task) -> tuple[float, float]:
     """Position (m) and orientation (rad) error norms of the object against `task` at the end of a
     held_motion: where the object ends. NaN without one, or when MuJoCo warned on the way (its automatic

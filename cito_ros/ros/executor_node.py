@@ -254,7 +254,7 @@ class ExecutorNode(Node):
         bag.write("/cito/predicted_object_path", path, int(policy.start_s * 1e9))
 
     def _object_pose(self, executor: Executor, now: float):
-        (x, y), yaw = executor.estimator.object_pose(now)
+        (x, y), yaw = executor.object_pose(now)
         z = float(executor.model.scene.object_qpos(executor.model.resting_state)[2])
         return ros_messages.pose_msg(np.array([x, y, z]), np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]))
 

@@ -30,6 +30,12 @@ class TrackingSettings:
         "without them (where no start's does, the best plan is one it follows without them); 0: the nominal "
         "tracking alone, within max_error_increase_m", minimum=0)
     reference_offset_rad: float = setting("the largest offset of any joint (rad)", minimum=0.0)
+    world_friction_scales: tuple[float, ...] = setting(
+        "physical pipeline: worlds whose object's friction is this times the model's (paired by position with "
+        "world_mass_scales; the pair 1, 1 is the model itself); a start's plan at the goal ends the search only if "
+        "the PD controller also brings the object within the success tolerances in each", positive=True)
+    world_mass_scales: tuple[float, ...] = setting("and whose object's mass is this times the model's",
+                                                   positive=True)
     hold_s: float = setting(
         "after a plan's last point the controller holds it at rest this long, as a joint trajectory controller "
         "does; every execution is judged where the object is then, not at the end of the horizon (s)", minimum=0.0)
@@ -37,6 +43,9 @@ class TrackingSettings:
     def check(self, path: str) -> None:
         if len(self.kp) != 7 or len(self.kd) != 7:
             raise ValueError(f"{path}.kp and {path}.kd must have one gain per arm joint (7)")
+        if len(self.world_friction_scales) != len(self.world_mass_scales):
+            raise ValueError(f"{path}.world_friction_scales and {path}.world_mass_scales must pair up (the same "
+                             f"length), got {len(self.world_friction_scales)} and {len(self.world_mass_scales)}")
 
 
 @dataclass(frozen=True)
@@ -46,6 +55,9 @@ class ExecutorSettings:
     replan_budget_s: float = setting("a replan stops after the iteration that passes this much time (s)",
                                      positive=True)
     replan_iterations: int = setting("iLQR iterations of a replan at most", minimum=1)
+    replan_mu: float = setting("the regularization a replan's iLQR starts from", positive=True)
+    replan_regularizations: int = setting("a replan raises iLQR's mu at most this often before it gives up on a "
+                                          "step (a forward pass each)", minimum=0)
     min_replan_knots: int = setting("no replan with fewer knots of the push left", minimum=1)
     feedback_regularization: float = setting("mu of the backward pass a plan's feedback gains come from, where "
                                              "no iLQR step gave them", positive=True)
@@ -56,6 +68,10 @@ class ExecutorSettings:
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
+    world_friction_scales: tuple[float, ...] = setting(
+        "the executor's plans are sturdy in these worlds (tracking.world_friction_scales for its plans)",
+        positive=True)
+    world_mass_scales: tuple[float, ...] = setting("and these (tracking.world_mass_scales)", positive=True)
     object_gain_scale: float = setting("the plan's feedback gains on the cube's state: this times the backward pass's "
                                        "(0: the arm's servo alone; docs/experiments.md has what the full gains did)",
                                        minimum=0.0)

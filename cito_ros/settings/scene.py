@@ -59,6 +59,12 @@ class SceneConfig:
         where its object stands (the steady push reach, the marker template)."""
         return dataclasses.replace(self, object=dataclasses.replace(self.object, position_m=(0.0, 0.0), yaw_rad=0.0))
 
+    def with_object_scaled(self, friction_scale: float, mass_scale: float) -> "SceneConfig":
+        """This scene with its object's friction and mass scaled: a world that is not the model."""
+        obj = self.object
+        return dataclasses.replace(self, object=dataclasses.replace(
+            obj, friction=obj.friction * friction_scale, mass_kg=obj.mass_kg * mass_scale))
+
     @classmethod
     def load(cls, name_or_path: str | Path = DEFAULT_SCENE) -> "SceneConfig":
         """Load `config/scenes/<name>.yaml`, or a YAML file given by path."""

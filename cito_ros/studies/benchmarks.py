@@ -55,6 +55,12 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
     decoded_ms = median_ms(lambda: simulator.rollout(state, torques, stiffness), repeats)
     python_ms = median_ms(lambda: oracle.rollout(simulator, oracle_scene, state, torques, stiffness),
                           max(5, repeats // 20), warmup=1)
+    # plain MuJoCo stepping the same scene: the oracle's model (the plugins removed, the arm's motors plain
+    # actuators) with the same arm torques, rolled out by mujoco.rollout as the native one is
+    plain = Simulator(oracle_scene, *settings.horizon, nthread=nthread)
+    plain_controls = np.zeros((simulator.n_steps, oracle_scene.model.nu))
+    plain_controls[:, oracle_scene.motor_ids] = controls[:, scene.motor_ids]
+    plain_ms = median_ms(lambda: plain.rollout_batch(state[None], plain_controls[None]), repeats)
     states = np.repeat(state[None], batch, axis=0)
     batch_controls = np.repeat(controls[None], batch, axis=0)
     batch_ms = median_ms(lambda: simulator.rollout_batch(states, batch_controls), max(5, repeats // 20))
@@ -67,6 +73,8 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
         "native_rollout_with_decoding_ms": decoded_ms,
         "python_rollout_ms": python_ms,
         "speedup_native_over_python": python_ms / native_ms,
+        "plain_mujoco_rollout_ms": plain_ms,
+        "native_over_plain_mujoco": native_ms / plain_ms,
         "batched_rollouts_per_s": batch / (batch_ms / 1e3),
         "batch_threads": nthread,
         "step_us": 1e3 * native_ms / simulator.n_steps,

@@ -1,0 +1,57 @@
+"""Plans sturdy where the cube is not the model's: with tracking.world_*_scales a plan ends the search only if
+the joint trajectory controller also brings the cube to the goal where its friction and mass are scaled. Real
+MuJoCo."""
+import math
+
+import numpy as np
+import pytest
+
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.candidates import Executed, execute
+from cito_ros.planner.scripted import scripted_torques
+from cito_ros.planner.stages import physical_twin
+
+AT_GOAL = dict(position_error_m=0.01, orientation_error_rad=0.05, max_joint_speed_ratio=0.9,
+               joint_range_excess_rad=0.0, rest_object_speed_m_s=0.0, tracked_position_error_m=0.012)
+
+
+def with_worlds(settings, friction=(1.0, 0.5, 1.5), mass=(1.0, 0.5, 2.0)):
+    return settings.with_overrides({"tracking.world_friction_scales": friction, "tracking.world_mass_scales": mass})
+
+
+def test_with_world_scales_a_plan_succeeds_only_if_tracked_to_the_goal_in_every_world(settings):
+    settings = with_worlds(settings)
+    sturdy = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1), (0.019, 0.14)))
+    slides_off = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1), (0.05, 0.1)))  # overshoots on ice
+    turns_off = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.16), (0.01, 0.1)))
+    warned = Executed(**AT_GOAL, world_tracked_errors=((math.nan, math.nan), (0.01, 0.1)))
+    assert Executed.succeeds(sturdy.rank(settings))
+    assert not any(Executed.succeeds(e.rank(settings)) for e in (slides_off, turns_off, warned))
+    # where none is sturdy, the one whose worst world is nearest the goal ranks first
+    assert sturdy.rank(settings) < turns_off.rank(settings) < slides_off.rank(settings) < warned.rank(settings)
+    # tracked in the model's own world alone (the default), the nominal tracking decides
+    assert Executed.succeeds(Executed(**AT_GOAL).rank(settings))
+
+
+def test_a_plan_is_tracked_in_each_scaled_world_and_the_cube_ends_elsewhere_there(settings):
+    settings = with_worlds(settings)
+    problem = build_problem(settings, PushRequest("vscm", 7)).problem
+    executor = physical_twin(problem, problem.cost)
+    torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
+    executed = execute(executor, torques, settings.tracking)
+    assert len(executed.world_tracked_errors) == 2  # the model's own pair is the nominal tracking
+    positions = [executed.tracked_position_error_m] + [p for p, _ in executed.world_tracked_errors]
+    assert all(math.isfinite(p) for p in positions) and len(set(positions)) == 3
+    world = executor.simulator.in_world(0.5, 2.0)
+    model, scaled = executor.scene.model, world.scene.model
+    body = model.geom_bodyid[executor.scene.object_geom_id]
+    assert scaled.body_mass[body] == pytest.approx(2.0 * model.body_mass[body])
+    cube = executor.scene.object_geom_id
+    pairs = (model.pair_geom1 == cube) | (model.pair_geom2 == cube)
+    assert pairs.any() and np.allclose(scaled.pair_friction[pairs, :2], 0.5 * model.pair_friction[pairs, :2])
+    assert world is executor.simulator.in_world(0.5, 2.0) and world.nstate == executor.simulator.nstate
+
+
+def test_scales_that_do_not_pair_up_are_refused(settings):
+    with pytest.raises(ValueError, match="must pair up"):
+        with_worlds(settings, (1.0, 0.5), (1.0,))
