@@ -2,6 +2,7 @@
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -209,3 +210,15 @@ def test_every_speed_vs_error_case_can_be_posed_in_every_variants_scene(settings
             target = np.array([x + case.push[0], y + case.push[1]])
             build_problem(settings, PushRequest("scm", case.beta, target_position_m=target,
                                                 target_yaw_rad=case.push[2], scene=scene))
+
+
+def test_the_main_job_plans_then_executes_open_and_closed_loop_in_a_mismatched_world(tmp_path):
+    result = run("cito-demo", "--bag-directory", str(tmp_path), timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "status 0 (SUCCESS)" in result.stdout
+    assert "open loop" in result.stdout and "closed loop" in result.stdout
+    table = result.stdout.split("true error at rest", 1)[1].splitlines()[0]
+    assert len(re.findall(r"\d+\.\d\d cm \d\.\d{3} rad", table)) == 2  # both outcomes, on the world's truth
+    bags = sorted(p.name for p in tmp_path.iterdir())
+    assert len(bags) == 2 and bags[0].startswith("execute_") and bags[1].startswith("plan_")
+    assert (tmp_path / bags[0] / "metadata.yaml").is_file()

@@ -5,7 +5,8 @@ progress bar and prints a summary. Then the same push on a robot whose world is 
 closed loop, cito-sim-robot and cito-executor-node over DDS, the goal sent as an ExecutePush action; and open
 loop, the plan from where the planner was told the cube is, executed in the same world in this process by a
 joint trajectory controller. Both are judged on the simulator's true cube at rest and printed side by side.
-Leaves the bags, stops the nodes and exits 0 when a plan came back and the execution ran.
+A plan that did not succeed (a cancelled one, say) is not executed. Leaves the bags, stops the nodes and exits 0
+when a plan came back (and, when it succeeded, the execution ran).
 
     cito-demo [--contact-model {cccm,scm,vscm}] [--target X Y YAW] [--bag-directory DIR] [--timeout S]
               [--cancel-after S] [--no-execute]
@@ -54,14 +55,19 @@ def main(argv: list[str] | None = None) -> int:
     node = subprocess.Popen([str(node_bin), "--ros-args", "-p", f"node.bag_directory:={args.bag_directory.resolve()}",
                              "--log-level", "warn"], env=os.environ.copy())
     try:
-        code = _call(args)
+        code, planned = _call(args)
     finally:
         node.send_signal(signal.SIGINT)
         try:
             node.wait(timeout=10)
         except subprocess.TimeoutExpired:
             node.kill()
-    return code if code or args.no_execute else _execute(args)
+    if code or args.no_execute:
+        return code
+    if not planned:
+        print("the plan did not succeed: not executed")
+        return code
+    return _execute(args)
 
 
 def _goal(args, settings) -> tuple[float, float, float]:
@@ -112,7 +118,8 @@ def _execute(args) -> int:
     return 0
 
 
-def _call(args) -> int:
+def _call(args) -> tuple[int, bool]:
+    """The plan through the planner node: the exit code, and whether the plan succeeded."""
     import rclpy
     from cito_msgs.action import PlanPush
     from rclpy.action import ActionClient
@@ -131,7 +138,7 @@ def _call(args) -> int:
         client = ActionClient(client_node, PlanPush, "/cito/plan_push")
         if not client.wait_for_server(timeout_sec=30.0):
             print("cito-demo: the planner node did not come up", file=sys.stderr)
-            return 1
+            return 1, False
         bar = progress_bar(None, f"planning ({args.contact_model})", "it")
 
         def feedback(message) -> None:
@@ -145,7 +152,7 @@ def _call(args) -> int:
         rclpy.spin_until_future_complete(client_node, sent, timeout_sec=30.0)
         if not sent.done() or not sent.result().accepted:
             print("cito-demo: the goal was not accepted", file=sys.stderr)
-            return 1
+            return 1, False
         future = sent.result().get_result_async()
         if args.cancel_after is not None:
             rclpy.spin_until_future_complete(client_node, future, timeout_sec=args.cancel_after)
@@ -156,7 +163,7 @@ def _call(args) -> int:
         bar.close()
         if not future.done():
             print(f"cito-demo: no result within {args.timeout} s", file=sys.stderr)
-            return 1
+            return 1, False
         r = future.result().result
         m = r.metrics
         print(f"plan-push ({args.contact_model}, beta {settings.beta:g}): status {r.status} "
@@ -173,7 +180,7 @@ def _call(args) -> int:
               f"round trip {time.monotonic() - started:.2f} s)")
         print(f"  trajectory         {len(r.trajectory.points)} points, {len(r.contact_forces)} contact samples (with the hold after it)")
         print(f"  bag                {r.bag_path}")
-        return 0
+        return 0, r.success
     finally:
         client_node.destroy_node()
         rclpy.try_shutdown()
