@@ -37,7 +37,7 @@ from cito_ros.studies.cases import load_cases  # noqa: E402
 
 
 def print_rollout(result: dict) -> None:
-    print(f"1 s rollout ({result['steps']} steps of {result['timestep_s'] * 1e3:g} ms, {result['contact_model']}):")
+    print(f"{result['horizon_s']:g} s rollout ({result['steps']} steps of {result['timestep_s'] * 1e3:g} ms, {result['contact_model']}):")
     print(f"  native       {result['native_rollout_ms']:8.3f} ms   ({result['step_us']:.2f} us/step)")
     print(f"  python       {result['python_rollout_ms']:8.3f} ms   (native is {result['speedup_native_over_python']:.1f}x faster)")
     print(f"  plain MuJoCo {result['plain_mujoco_rollout_ms']:8.3f} ms   (the same scene without the plugins; native is "
