@@ -40,8 +40,9 @@ def print_rollout(result: dict) -> None:
     print(f"{result['horizon_s']:g} s rollout ({result['steps']} steps of {result['timestep_s'] * 1e3:g} ms, {result['contact_model']}):")
     print(f"  native       {result['native_rollout_ms']:8.3f} ms   ({result['step_us']:.2f} us/step)")
     print(f"  python       {result['python_rollout_ms']:8.3f} ms   (native is {result['speedup_native_over_python']:.1f}x faster)")
-    print(f"  plain MuJoCo {result['plain_mujoco_rollout_ms']:8.3f} ms   (the same scene without the plugins; native is "
-          f"{result['native_over_plain_mujoco']:.2f}x its time)")
+    print(f"  plain MuJoCo {result['plain_mujoco_rollout_ms']:8.3f} ms   (the same scene and motion without the plugins, "
+          f"joints within {result['plain_mujoco_joint_drift_rad']:.1e} rad; native is {result['native_over_plain_mujoco']:.2f}x "
+          f"its time)")
     print(f"  batched      {result['batched_rollouts_per_s']:8.0f} rollouts/s on {result['batch_threads']} threads")
 
 

@@ -55,12 +55,19 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
     decoded_ms = median_ms(lambda: simulator.rollout(state, torques, stiffness), repeats)
     python_ms = median_ms(lambda: oracle.rollout(simulator, oracle_scene, state, torques, stiffness),
                           max(5, repeats // 20), warmup=1)
-    # plain MuJoCo stepping the same scene: the oracle's model (the plugins removed, the arm's motors plain
-    # actuators) with the same arm torques, rolled out by mujoco.rollout as the native one is
+    # plain MuJoCo stepping the same scene through the same motion: the oracle's model (the plugins removed, its
+    # motors and contact actuator plain actuators) driven by the forces the native rollout applied each step
+    # (its motors' total torques, the contact force), rolled out by mujoco.rollout as the native one is
     plain = Simulator(oracle_scene, *settings.horizon, nthread=nthread)
+    _, sensed, _ = simulator.rollout_batch(state[None], controls[None])
     plain_controls = np.zeros((simulator.n_steps, oracle_scene.model.nu))
-    plain_controls[:, oracle_scene.motor_ids] = controls[:, scene.motor_ids]
+    plain_controls[:, oracle_scene.motor_ids] = sensed[0][:, scene.sensors.torque]
+    plain_controls[:, oracle_scene.contact_actuator_id] = sensed[0][:, scene.sensors.gamma][:, 0]
     plain_ms = median_ms(lambda: plain.rollout_batch(state[None], plain_controls[None]), repeats)
+    plain_states, _, _ = plain.rollout_batch(state[None], plain_controls[None])
+    native_states, _, _ = simulator.rollout_batch(state[None], controls[None])
+    arm = oracle_scene.state_qpos_adr + oracle_scene.arm_qpos_adr
+    plain_drift_rad = float(np.max(np.abs(plain_states[0][:, arm] - native_states[0][:, arm])))
     states = np.repeat(state[None], batch, axis=0)
     batch_controls = np.repeat(controls[None], batch, axis=0)
     batch_ms = median_ms(lambda: simulator.rollout_batch(states, batch_controls), max(5, repeats // 20))
@@ -74,6 +81,7 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
         "python_rollout_ms": python_ms,
         "speedup_native_over_python": python_ms / native_ms,
         "plain_mujoco_rollout_ms": plain_ms,
+        "plain_mujoco_joint_drift_rad": plain_drift_rad,
         "native_over_plain_mujoco": native_ms / plain_ms,
         "batched_rollouts_per_s": batch / (batch_ms / 1e3),
         "batch_threads": nthread,
