@@ -7,7 +7,6 @@ import contextlib
 import math
 import os
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -26,9 +25,9 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from cito_ros.ros.sim_session import spawn
 from cito_ros.settings import load_settings
 
-NODE = str(Path(sys.executable).parent / "cito-planner-node")
 Q0_BETA_7 = [-math.pi / 12, -math.pi / 7, 0.0, 3 * math.pi / 7, -math.pi / 6, -2 * math.pi / 7, 0.0]
 JOINTS = ["j0", "j1", "j2", "j3", "j4", "j5", "j6"]
 TOPICS = {
@@ -51,10 +50,9 @@ def steps(response) -> int:
     return count
 
 
-def start_node(domain: int, bag_directory: Path, *extra: str) -> subprocess.Popen:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    return subprocess.Popen([NODE, "--ros-args", "-p", f"node.bag_directory:={bag_directory}", *extra],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+def start_node(domain: int, bag_directory: Path, *parameters: str) -> subprocess.Popen:
+    """A planner node on `domain`, with -p parameters after its bag directory."""
+    return spawn("cito-planner-node", domain, f"node.bag_directory:={bag_directory}", *parameters)
 
 
 @contextlib.contextmanager

@@ -180,7 +180,7 @@ class Executor:
             self.phase, self._hold_q, self._settle_since_s = Phase.SETTLING, joints.q.copy(), now_s
         if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
                 self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
-            position, orientation = self.goal.errors(*self.estimator.resting_pose())
+            position, orientation = self.errors(now_s)  # at rest: the rest window's mean
             task = self.settings.task
             if position < task.success_position_error_m and orientation < task.success_orientation_error_rad:
                 return self._end(Ending.SUCCEEDED, f"the cube is {100 * position:.2f} cm and {orientation:.3f} rad "
@@ -360,10 +360,8 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     try:
         result = plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
                            target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
-                           settings=settings.with_overrides({
-                               "solver.time_limit_s": max(min(job.time_left_s, settings.executor.plan_time_limit_s), 1.0),
-                               "tracking.world_friction_scales": settings.executor.world_friction_scales,
-                               "tracking.world_mass_scales": settings.executor.world_mass_scales}))
+                           settings=settings.with_overrides({"solver.time_limit_s": max(min(
+                               job.time_left_s, settings.executor.plan_time_limit_s), 1.0)}))
         start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
                               request).initial_state
     except ValueError as error:

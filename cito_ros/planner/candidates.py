@@ -73,7 +73,8 @@ class Executed:
     def succeeds(rank: tuple) -> bool:
         """Whether a rank ends the search: within the arm's limits, at the goal, and followed by a joint
         trajectory controller to within tracking.max_error_increase_m of the executed error (and with
-        tracking.reference_offsets, to the goal under each offset and without)."""
+        tracking.reference_offsets, to the goal under each offset and without; with tracking.world_*_scales, to
+        the goal in each of those worlds)."""
         beyond_limits, away, untrackable, fragile, _, _ = rank
         return not beyond_limits and not away and not untrackable and not fragile
 

@@ -92,8 +92,7 @@ def world_errors(simulator: Simulator, initial_state: np.ndarray, reference: Joi
         if friction == 1.0 and mass == 1.0:
             continue
         world = simulator.in_world(friction, mass)
-        tracked = track(world, initial_state, reference, gains)
-        errors.append(errors_at_rest(held_motion(world, tracked.final_state, gains), task))
+        errors.append(rest_errors(world, track(world, initial_state, reference, gains).final_state, task, gains))
     return errors
 
 

@@ -68,10 +68,6 @@ class ExecutorSettings:
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
-    world_friction_scales: tuple[float, ...] = setting(
-        "the executor's plans are sturdy in these worlds (tracking.world_friction_scales for its plans)",
-        positive=True)
-    world_mass_scales: tuple[float, ...] = setting("and these (tracking.world_mass_scales)", positive=True)
     object_gain_scale: float = setting("the plan's feedback gains on the cube's state: this times the backward pass's "
                                        "(0: the arm's servo alone; docs/experiments.md has what the full gains did)",
                                        minimum=0.0)
