@@ -3,6 +3,7 @@ client and subscribers in this one, over Fast DDS on an isolated domain. One exe
 stale measurements hold the arm, and every execution's bag reads back."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -41,6 +42,23 @@ def robot(tmp_path_factory):
         operator.close()
         stop(node)
         stop(sim)
+
+
+def test_a_bad_goal_is_refused_with_its_reason_and_the_node_serves_the_next(robot):
+    operator, sim, node = robot
+    for goal, reason in ((dataclasses.replace(GOAL, contact_model="rigid"), "unknown contact model 'rigid'"),
+                         (dataclasses.replace(GOAL, time_limit_s=-1.0), "time_limit_s must be a non-negative"),
+                         (dataclasses.replace(GOAL, scene="no_such_scene"), "unknown scene 'no_such_scene'")):
+        handle = operator.send(goal)
+        assert handle.accepted
+        result = operator.wait(handle.get_result_async()).result
+        assert result.status == Result.STATUS_INVALID_REQUEST and not result.success
+        assert reason in result.message, result.message
+    assert sim.poll() is None and node.poll() is None
+    handle = operator.send(GOAL)  # and the next goal runs
+    assert handle.accepted
+    operator.wait(handle.cancel_goal_async(), 30.0)
+    assert operator.wait(handle.get_result_async()).result.status == Result.STATUS_CANCELLED
 
 
 def test_a_second_goal_is_rejected_while_one_runs_and_a_cancel_holds_the_arm(robot):
