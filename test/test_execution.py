@@ -1,6 +1,7 @@
 """The execution layer in process: the simulated robot's world and camera, the state estimate, the feedback
 policy, the compute delay honoured, and the executor holding the arm when its measurements stop or it is
 cancelled. Real MuJoCo, real iLQR."""
+import dataclasses
 import math
 
 import mujoco
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from cito_ros.execution.estimator import StateEstimator
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
+from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Phase
 from cito_ros.execution.policy import bias_torques, state_difference
 from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld
 from cito_ros.model.scene import start_configuration
@@ -124,6 +125,33 @@ def pushing(settings, steps: int) -> tuple[Executor, SimulatedWorld]:
         world.step(executor.command(world.time_s))
         deliver(executor, world)
     return executor, world
+
+
+def test_the_executor_keeps_every_joint_within_its_speed_limit_under_a_policy_that_would_take_it_past(settings):
+    """A policy of full torque on every joint, the shoulder lifting (the arm touches nothing for 0.3 s): sent as it
+    is (with the bias forces) it drives joints past their speed limits; through the executor no joint passes
+    SPEED_GUARD of its limit (plus the model's 1 % between one step and the next)."""
+    executor, world = pushing(settings, 0)
+    while executor.phase is not Phase.PUSHING:  # the plan takes effect after its compute time
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    scene = executor.model.scene
+    flat_out = np.tile(np.array([1, -1, 1, -1, 1, 1, 1]) * scene.torque_limit, (len(executor.policy.torques_Nm), 1))
+    executor.policy = dataclasses.replace(executor.policy, torques_Nm=flat_out,
+                                          gains=np.zeros_like(executor.policy.gains))
+    raw_world = SimulatedWorld(settings, Mismatch(), world.joints().q)
+    data = mujoco.MjData(raw_world.model)
+    raw, limited = [], []
+    for _ in range(int(0.3 / world.timestep_s)):
+        joints = raw_world.joints()
+        raw_world.step(flat_out[0] + bias_torques(raw_world.scene, data, joints.q, joints.qdot))
+        raw.append(raw_world.joint_speed_ratio())
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+        limited.append(world.joint_speed_ratio())
+    assert executor.phase is Phase.PUSHING
+    assert max(raw) > 1.2
+    assert max(limited) <= SPEED_GUARD + 0.01
 
 
 def test_stale_measurements_end_the_execution_with_the_arm_held_where_it_is(settings):

@@ -29,7 +29,7 @@ import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator
 from cito_ros.execution.mpc import PushModel
-from cito_ros.execution.policy import Policy, bias_torques
+from cito_ros.execution.policy import Policy, bias_torques, within_speed_limits
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
@@ -37,7 +37,7 @@ from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import Status
 from cito_ros.settings import SceneConfig, Settings
 
-SPEED_GUARD = 0.95  # of each joint's velocity limit: beyond it the executor brakes the joint
+SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
 
 
 class Phase(str, enum.Enum):
@@ -149,18 +149,13 @@ class Executor:
                 u = kp * (q - joints.q) + kd * (qdot - joints.qdot)
             else:
                 u = kp * (self._hold_q - joints.q) - kd * joints.qdot
-            u = self._within_speed_limits(u, joints.qdot) + \
-                bias_torques(self.model.scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
+            scene = self.model.scene
+            bias = bias_torques(scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
+            # a robot's joint limiter faults past the limit: kept within it ahead, not braked once past
+            u = within_speed_limits(scene, self._data, u, joints.qdot, bias, SPEED_GUARD * scene.velocity_limit,
+                                    self.settings.executor.speed_horizon_s) + bias
         limit = self.model.scene.torque_limit
         return np.clip(u, -limit, limit)
-
-    def _within_speed_limits(self, u: np.ndarray, qdot: np.ndarray) -> np.ndarray:
-        """u with a brake on every joint faster than SPEED_GUARD of its velocity limit: a damping of ten times
-        the joint's servo gain on the excess speed, as a robot's joint limiter would (a new plan's first steps
-        can kick a joint beyond it)."""
-        limit = SPEED_GUARD * self.model.scene.velocity_limit
-        excess = qdot - np.clip(qdot, -limit, limit)
-        return u - 10.0 * self.model.servo_gains[1] * excess
 
     def _advance(self, now_s: float) -> None:
         joints = self._joints

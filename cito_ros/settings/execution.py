@@ -75,6 +75,9 @@ class ExecutorSettings:
                                             "started, no joint faster than this fraction of its velocity limit",
                                             positive=True)
     retreat_min_s: float = setting("and taking at least this long (s)", positive=True)
+    speed_horizon_s: float = setting("the executor keeps every joint within SPEED_GUARD of its velocity limit this "
+                                     "far ahead: the arm's accelerations are clipped to those that cannot pass it "
+                                     "by then (s; at least the loop's delay)", positive=True)
     servo_gain_scale: float = setting("the executor's joint servo gains: this times tracking.kp and kd (a servo behind "
                                       "a measurement and command delay of milliseconds needs far lower gains than "
                                       "the planner's zero-delay controller)", positive=True)
