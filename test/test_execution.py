@@ -178,10 +178,12 @@ def test_a_cancelled_execution_holds_the_arm(settings):
     assert np.abs(world.joints().qdot).max() < 0.05 and executor.phase is Phase.DONE
 
 
-def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_cube_before_the_next(settings):
+def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_cube_and_plans_the_next_there(
+        settings):
     """Judged against a goal tolerance no push meets, the first push misses: the arm goes back to where the
     execution started, along a path within the retreat's speed limit, the cube left where it came to rest, and
-    the next push is planned from there."""
+    the next push is planned from there; a next push the model predicts would leave the cube no closer is not
+    made, and the execution ends there."""
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
     home = start_configuration(7)
     executor, world = started(strict)
@@ -202,3 +204,8 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     assert np.linalg.norm(world.true_object_pose()[0][:2] - cube_before[:2]) < 0.003  # the cube not dragged along
     job = executor.job(world.time_s)
     assert job is not None and job.kind == "plan" and np.abs(job.q - home).max() < 0.05
+    position, _ = executor.goal.errors(*job.object_pose)
+    no_closer = dataclasses.replace(executor.policy, predicted_error_m=position + 1e-3)
+    assert executor.accept(job, no_closer, 0.5) is None
+    assert executor.ending is Ending.TASK_NOT_ACHIEVED and "would leave it" in executor.message
+    assert executor.pushes == 1 and executor.phase is Phase.DONE

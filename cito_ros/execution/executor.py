@@ -11,9 +11,9 @@ takes it with that time, and `command` swaps it in then.
 Phases: `planning` (the arm held while a push is planned), `pushing` (the policy, replanned), `settling` (the arm
 held at the push's end until the cube has come to rest; then the push is judged by the camera: at the goal,
 done; else, while pushes and time are left, `retreating`: the arm goes back along a minimum-jerk path to where
-the execution started, and a new push is planned from there), `done`. Measurements older than
-executor.stale_after_s, a cancel, the time limit or a push that cannot be planned end the execution with the arm
-held where it is.
+the execution started, and a new push is planned from there, made only if the model predicts it brings the
+cube closer), `done`. Measurements older than executor.stale_after_s, a cancel, the time limit or a push that
+cannot be planned end the execution with the arm held where it is.
 """
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ class Ending(enum.Enum):
 
     SUCCEEDED = "succeeded"
     INVALID_REQUEST = "invalid_request"          # a push could not be planned from where things are
-    TASK_NOT_ACHIEVED = "task_not_achieved"      # the pushes are spent, the cube is not at the goal
+    TASK_NOT_ACHIEVED = "task_not_achieved"      # the pushes are spent, or no push would bring the cube closer
     CANCELLED = "cancelled"
     TIME_LIMIT = "time_limit"
     STALE_MEASUREMENTS = "stale_measurements"
@@ -249,6 +249,16 @@ class Executor:
                 self._end(outcome.ending, outcome.message, None if self._joints is None else self._joints.q)
                 return None
             if outcome is None:
+                return None
+            if job.kind == "plan" and self.pushes and \
+                    outcome.predicted_error_m >= self.goal.errors(*job.object_pose)[0]:
+                # a push that would not bring the cube closer is not made, nor left to run out the time
+                position, orientation = self.goal.errors(*job.object_pose)
+                self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is {100 * position:.2f} "
+                                                    f"cm and {orientation:.3f} rad from the goal, and the best push "
+                                                    f"found from the near face would leave it "
+                                                    f"{100 * outcome.predicted_error_m:.2f} cm off",
+                          None if self._joints is None else self._joints.q)
                 return None
             effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start
             if job.kind == "plan":  # a fresh push starts from rest when it is ready: its time 0 is then

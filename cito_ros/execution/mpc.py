@@ -57,11 +57,15 @@ class PushModel:
         stage = list(settings.stages.physical)[REPLAN_STAGE]
         bare = PushProblem(simulator, state, self.task, stage_cost(settings, weights, False, 0.0, None, 0.0, 0.0),
                            settings.gradient, settings.task.position_error_scale_min_m)
-        touch = touch_profile(bare, bare.with_torques(torques), settings.stages.touch_force_N)
+        z = bare.with_torques(torques)
+        touch = touch_profile(bare, z, settings.stages.touch_force_N)
         cost = stage_cost(settings, weights, False, stage.contact_weight, touch, stage.joint_speed_weight,
                           stage.joint_position_weight)
-        return PushProblem(simulator, state, self.task, cost, settings.gradient,
-                           settings.task.position_error_scale_min_m)
+        problem = PushProblem(simulator, state, self.task, cost, settings.gradient,
+                              settings.task.position_error_scale_min_m)
+        rollout = bare.evaluate(z)  # the same rollout under this cost: simulated once
+        problem.remember(z, rollout.states, rollout.sensordata, rollout.warnings)
+        return problem
 
     def policy(self, start_s: float, state: np.ndarray, torques: np.ndarray,
                gains: np.ndarray | None = None, problem: PushProblem | None = None) -> Policy:
