@@ -36,7 +36,6 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path as PathMsg
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -48,7 +47,7 @@ from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.model.scene import ARM_JOINTS
 from cito_ros.ros import messages as ros_messages, parameters as ros_parameters
 from cito_ros.ros.bag import TopicQos
-from cito_ros.ros.process import run
+from cito_ros.ros.process import LoopNode, run
 from cito_ros.ros.recorder import Recorder, Recording
 
 NAME = "/cito/execute_push"
@@ -79,18 +78,13 @@ class ExecutorNode(Node):
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         group = ReentrantCallbackGroup()
         self.predicted = self.create_publisher(PathMsg, "/cito/predicted_object_path", qos)
-        # the control loop in a node of its own, spun by an executor in a thread of its own: a step on every
-        # joint state. Beside the action server and the parameter services, rclpy's MultiThreadedExecutor spent
-        # most of this node's CPU rebuilding their wait set for every joint state, and steps came up to 60 ms
-        # apart on two cores.
-        self._control = Node("cito_executor_control", start_parameter_services=False)
-        self.commands = self._control.create_publisher(Float64MultiArray, "/effort_controller/commands", qos)
+        # a control step on every joint state, in a loop node: beside the action server, steps came up to 60 ms
+        # apart on two cores
+        self._control = LoopNode("cito_executor_control")
+        self.commands = self._control.node.create_publisher(Float64MultiArray, "/effort_controller/commands", qos)
         # the latest joint state only: a backlog of old ones is no use to a control step
-        self._control.create_subscription(JointState, "/joint_states", self._on_joints,
-                                          QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
-        self._control_executor = SingleThreadedExecutor()
-        self._control_executor.add_node(self._control)
-        self._control_thread = threading.Thread(target=self._control_executor.spin, name="cito_control", daemon=True)
+        self._control.node.create_subscription(JointState, "/joint_states", self._on_joints,
+                                               QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.create_subscription(PoseStamped, "/object/pose", self._on_pose, qos, callback_group=group)
         self.create_timer(0.02, self._watchdog, callback_group=group)  # when the joint states stop
         self.action = ActionServer(self, ExecutePush, NAME, execute_callback=self._on_execute,
@@ -115,7 +109,7 @@ class ExecutorNode(Node):
         self._poses: list[tuple[PoseReading, float]] = []  # the latest few (with their arrival), for a new execution
         self._executions = 0
         self.get_logger().info(f"ready: action {NAME}, bags in {self.bag_directory}")
-        self._control_thread.start()
+        self._control.start()
 
     # ------------------------------------------------------------------ measurements and control
 
@@ -294,9 +288,7 @@ class ExecutorNode(Node):
         self.recorder.drain(60.0)
 
     def destroy_node(self) -> None:
-        self._control_executor.shutdown()
-        self._control_thread.join(2.0)
-        self._control.destroy_node()
+        self._control.destroy()
         super().destroy_node()
 
 

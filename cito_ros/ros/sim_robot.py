@@ -31,7 +31,7 @@ from cito_ros.execution.policy import hold_torques
 from cito_ros.execution.world import Mismatch, SimulatedWorld
 from cito_ros.model.scene import ARM_JOINTS, start_configuration
 from cito_ros.ros.messages import pose_msg, time_msg
-from cito_ros.ros.process import run
+from cito_ros.ros.process import LoopNode, run
 from cito_ros.settings import SceneConfig, load_settings
 
 TRUE_POSE_EVERY = 10  # steps: the truth, for judging, at 20 Hz
@@ -77,9 +77,13 @@ class SimRobot(Node):
         self.joint_states = self.create_publisher(JointState, "/joint_states", qos)
         self.object_pose = self.create_publisher(PoseStamped, "/object/pose", qos)
         self.true_pose = self.create_publisher(PoseStamped, "/sim/true_object_pose", qos)
-        self.create_subscription(Float64MultiArray, "/effort_controller/commands", self._on_command, qos)
         self._command: tuple[float, np.ndarray] | None = None  # (arrival, torques)
         self._held: np.ndarray | None = None
+        # the commands in a loop node: every one taken as it comes, beside the parameter services
+        self._commands = LoopNode("cito_sim_robot_commands")
+        self._commands.node.create_subscription(Float64MultiArray, "/effort_controller/commands", self._on_command,
+                                                qos)
+        self._commands.start()
         self.stopping = threading.Event()
         self._thread = threading.Thread(target=self._run, name="cito_sim_robot", daemon=True)
         self._thread.start()
@@ -89,6 +93,10 @@ class SimRobot(Node):
     def stop(self, timeout_s: float) -> None:
         self.stopping.set()
         self._thread.join(timeout_s)
+
+    def destroy_node(self) -> None:
+        self._commands.destroy()
+        super().destroy_node()
 
     def _on_command(self, message: Float64MultiArray) -> None:
         if len(message.data) != len(ARM_JOINTS) or not np.all(np.isfinite(message.data)):
