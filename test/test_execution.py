@@ -98,8 +98,8 @@ def test_a_policy_commands_its_torques_on_its_reference_and_pulls_back_off_it(se
 
 def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_was_computed_from(settings):
     """In lock step the world's clock stands still while a plan is computed; the plan waits on the world's clock
-    for as long as it took, the arm driven by the running policy meanwhile."""
-    executor, world = started(settings)
+    for as long as it took, the arm driven by the running policy meanwhile (replans on: they are plans too)."""
+    executor, world = started(settings.with_overrides({"executor.replan": True}))
     works, active = [], []
     while executor.phase is not Phase.DONE and world.time_s < 20:
         job = executor.job(world.time_s)
@@ -152,6 +152,16 @@ def test_the_executor_keeps_every_joint_within_its_speed_limit_under_a_policy_th
     assert executor.phase is Phase.PUSHING
     assert max(raw) > 1.2
     assert max(limited) <= SPEED_GUARD + 0.01
+
+
+def test_a_push_is_replanned_while_it_runs_only_with_replans_on(settings):
+    for replan in (False, True):
+        executor, world = pushing(settings.with_overrides({"executor.replan": replan}), 0)
+        while executor.phase is not Phase.PUSHING:
+            world.step(executor.command(world.time_s))
+            deliver(executor, world)
+        job = executor.job(world.time_s)
+        assert (job is not None and job.kind == "replan") if replan else job is None
 
 
 def test_stale_measurements_end_the_execution_with_the_arm_held_where_it_is(settings):

@@ -228,7 +228,7 @@ class Executor:
             if self.phase is Phase.PUSHING and now_s + executor.replan_budget_s + executor.min_replan_knots * \
                     self.model.control_period_s >= self._push_end_s:
                 return None
-            if self.phase not in (Phase.PLANNING, Phase.PUSHING):
+            if self.phase is not Phase.PLANNING and not (self.phase is Phase.PUSHING and executor.replan):
                 return None
             return Job("plan" if self.phase is Phase.PLANNING else "replan", now_s,
                        self.estimator.state(self._joints, now_s), self._joints.q.copy(),
@@ -353,6 +353,19 @@ def warm_up(settings: Settings) -> None:
     push_limits.steady_reach_m(posed.scene, posed.initial_state)
 
 
+def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
+    """The planner's settings for the executor's pushes: within the time left (at most plan_time_limit_s), and a
+    plan checked with the controller that will run it, the executor's servo, in the model and in the worlds of
+    executor.world_*_scales (so that a push whose outcome hangs on the cube's friction and mass is not taken)."""
+    executor = settings.executor
+    kp, kd = (executor.servo_gain_scale * np.asarray(gains) for gains in (settings.tracking.kp, settings.tracking.kd))
+    return settings.with_overrides({
+        "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
+        "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(),
+        "tracking.world_friction_scales": list(executor.world_friction_scales),
+        "tracking.world_mass_scales": list(executor.world_mass_scales)})
+
+
 def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
     """A job's outcome (blocking; in this process or another): a push planned from rest (plan_push from the
     measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there."""
@@ -365,8 +378,7 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     try:
         result = plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
                            target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
-                           settings=settings.with_overrides({"solver.time_limit_s": max(min(
-                               job.time_left_s, settings.executor.plan_time_limit_s), 1.0)}))
+                           settings=executor_plan_settings(settings, job.time_left_s))
         start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
                               request).initial_state
     except ValueError as error:

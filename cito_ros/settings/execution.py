@@ -52,6 +52,8 @@ class TrackingSettings:
 class ExecutorSettings:
     """The closed-loop executor (cito_ros.execution.executor): feedback, replanning, and when it stops."""
 
+    replan: bool = setting("replan the push from the measured state while it runs (MPC); off, the push runs its "
+                           "plan's policy and a new push is planned from where the cube comes to rest")
     replan_budget_s: float = setting("a replan stops after the iteration that passes this much time (s)",
                                      positive=True)
     replan_iterations: int = setting("iLQR iterations of a replan at most", minimum=1)
@@ -81,6 +83,10 @@ class ExecutorSettings:
     servo_gain_scale: float = setting("the executor's joint servo gains: this times tracking.kp and kd (a servo behind "
                                       "a measurement and command delay of milliseconds needs far lower gains than "
                                       "the planner's zero-delay controller)", positive=True)
+    world_friction_scales: tuple[float, ...] = setting(
+        "the executor's plans: tracking.world_friction_scales for them (a plan at the goal ends the search only if "
+        "the executor's own servo also brings the cube there in each such world)", positive=True)
+    world_mass_scales: tuple[float, ...] = setting("and tracking.world_mass_scales for them", positive=True)
     plan_time_limit_s: float = setting("the planner's time for one push (the best plan by then is taken) (s)",
                                        positive=True)
     time_limit_s: float = setting("an execution's wall-clock limit where the goal gives none (s)", positive=True)
