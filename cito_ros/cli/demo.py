@@ -112,8 +112,8 @@ def _execute(args) -> int:
           f"{'yes' if result.success and closed.at_rest else 'no':>22}")
     print(f"  {'true error at rest':<28}{100 * opened.position_error_m:>11.2f} cm {opened.orientation_error_rad:.3f} rad"
           f"{100 * closed.position_error_m:>11.2f} cm {closed.orientation_error_rad:.3f} rad")
-    print(f"  closed loop: {result.message}; {result.replans} replans ({result.replan_rate_hz:.1f} Hz); "
-          f"{closed.round_trip_s:.1f} s from goal to result")
+    replans = f"{result.replans} replans ({result.replan_rate_hz:.1f} Hz)" if result.replans else "no replans"
+    print(f"  closed loop: {result.message}; {replans}; {closed.round_trip_s:.1f} s from goal to result")
     print(f"  bag                {result.bag_path}")
     return 0
 
