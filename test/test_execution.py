@@ -101,7 +101,7 @@ def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_
     for as long as it took, the arm driven by the running policy meanwhile (replans on: they are plans too)."""
     executor, world = started(settings.with_overrides({"executor.replan": True}))
     works, active = [], []
-    while executor.phase is not Phase.DONE and world.time_s < 20:
+    while executor.phase is not Phase.DONE and world.time_s < executor.time_limit_s + 5:  # it ends by its limit
         job = executor.job(world.time_s)
         work = executor.work(world.time_s)
         if work is not None:
@@ -127,14 +127,20 @@ def pushing(settings, steps: int) -> tuple[Executor, SimulatedWorld]:
     return executor, world
 
 
+def push_under_way(settings) -> tuple[Executor, SimulatedWorld]:
+    """An execution planned and run until its plan has taken effect (after its compute time)."""
+    executor, world = pushing(settings, 0)
+    while executor.phase is not Phase.PUSHING:
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    return executor, world
+
+
 def test_the_executor_keeps_every_joint_within_its_speed_limit_under_a_policy_that_would_take_it_past(settings):
     """A policy of full torque on every joint, the shoulder lifting (the arm touches nothing for 0.3 s): sent as it
     is (with the bias forces) it drives joints past their speed limits; through the executor no joint passes
     SPEED_GUARD of its limit (plus the model's 1 % between one step and the next)."""
-    executor, world = pushing(settings, 0)
-    while executor.phase is not Phase.PUSHING:  # the plan takes effect after its compute time
-        world.step(executor.command(world.time_s))
-        deliver(executor, world)
+    executor, world = push_under_way(settings)
     scene = executor.model.scene
     flat_out = np.tile(np.array([1, -1, 1, -1, 1, 1, 1]) * scene.torque_limit, (len(executor.policy.torques_Nm), 1))
     executor.policy = dataclasses.replace(executor.policy, torques_Nm=flat_out,
@@ -156,10 +162,7 @@ def test_the_executor_keeps_every_joint_within_its_speed_limit_under_a_policy_th
 
 def test_a_push_is_replanned_while_it_runs_only_with_replans_on(settings):
     for replan in (False, True):
-        executor, world = pushing(settings.with_overrides({"executor.replan": replan}), 0)
-        while executor.phase is not Phase.PUSHING:
-            world.step(executor.command(world.time_s))
-            deliver(executor, world)
+        executor, world = push_under_way(settings.with_overrides({"executor.replan": replan}))
         job = executor.job(world.time_s)
         assert (job is not None and job.kind == "replan") if replan else job is None
 

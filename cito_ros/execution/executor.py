@@ -152,10 +152,9 @@ class Executor:
             scene = self.model.scene
             bias = bias_torques(scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
             # a robot's joint limiter faults past the limit: kept within it ahead, not braked once past
-            u = within_speed_limits(scene, self._data, u, joints.qdot, bias, SPEED_GUARD * scene.velocity_limit,
-                                    self.settings.executor.speed_horizon_s) + bias
-        limit = self.model.scene.torque_limit
-        return np.clip(u, -limit, limit)
+            # within the motors' limits too: u + bias within +-torque_limit
+            return within_speed_limits(scene, self._data, u, joints.qdot, bias, SPEED_GUARD * scene.velocity_limit,
+                                       self.settings.executor.speed_horizon_s) + bias
 
     def _advance(self, now_s: float) -> None:
         joints = self._joints
@@ -250,10 +249,9 @@ class Executor:
                 return None
             if outcome is None:
                 return None
-            if job.kind == "plan" and self.pushes and \
-                    outcome.predicted_error_m >= self.goal.errors(*job.object_pose)[0]:
+            position, orientation = self.goal.errors(*job.object_pose)
+            if job.kind == "plan" and self.pushes and outcome.predicted_error_m >= position:
                 # a push that would not bring the cube closer is not made, nor left to run out the time
-                position, orientation = self.goal.errors(*job.object_pose)
                 self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is {100 * position:.2f} "
                                                     f"cm and {orientation:.3f} rad from the goal, and the best push "
                                                     f"found from the near face would leave it "

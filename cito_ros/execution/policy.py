@@ -107,7 +107,6 @@ def within_speed_limits(scene: Scene, data: mujoco.MjData, u: np.ndarray, qdot: 
         return u
     rest_Nm = inertia @ np.clip(0.0, low, high)
     step_Nm = inertia @ np.clip(acceleration, low, high) - rest_Nm
-    with np.errstate(divide="ignore", invalid="ignore"):
-        room = np.where(step_Nm > 0, (high_Nm - rest_Nm) / step_Nm, np.where(step_Nm < 0, (low_Nm - rest_Nm) / step_Nm,
-                                                                              np.inf))
+    up, down = step_Nm > 0, step_Nm < 0
+    room = np.concatenate([(high_Nm - rest_Nm)[up] / step_Nm[up], (low_Nm - rest_Nm)[down] / step_Nm[down], [1.0]])
     return np.clip(rest_Nm + float(np.clip(np.min(room), 0.0, 1.0)) * step_Nm, low_Nm, high_Nm)

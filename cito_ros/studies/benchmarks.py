@@ -59,13 +59,12 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
     # motors and contact actuator plain actuators) driven by the forces the native rollout applied each step
     # (its motors' total torques, the contact force), rolled out by mujoco.rollout as the native one is
     plain = Simulator(oracle_scene, *settings.horizon, nthread=nthread)
-    _, sensed, _ = simulator.rollout_batch(state[None], controls[None])
+    native_states, sensed, _ = simulator.rollout_batch(state[None], controls[None])
     plain_controls = np.zeros((simulator.n_steps, oracle_scene.model.nu))
     plain_controls[:, oracle_scene.motor_ids] = sensed[0][:, scene.sensors.torque]
     plain_controls[:, oracle_scene.contact_actuator_id] = sensed[0][:, scene.sensors.gamma][:, 0]
     plain_ms = median_ms(lambda: plain.rollout_batch(state[None], plain_controls[None]), repeats)
     plain_states, _, _ = plain.rollout_batch(state[None], plain_controls[None])
-    native_states, _, _ = simulator.rollout_batch(state[None], controls[None])
     arm = oracle_scene.state_qpos_adr + oracle_scene.arm_qpos_adr
     plain_drift_rad = float(np.max(np.abs(plain_states[0][:, arm] - native_states[0][:, arm])))
     states = np.repeat(state[None], batch, axis=0)
