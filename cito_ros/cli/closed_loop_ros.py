@@ -38,7 +38,7 @@ def ros_records(goals: list[Goal], model: str, settings: Settings, bag_directory
             for world in closed_loop.WORLDS:
                 records.append(closed_loop.episode(goal, world, "open_loop", model, settings))
                 progress(f"goal{goal.index:03d}-{world.name}-open_loop")
-                records.append(_closed_loop(operator, domain, goal, world, model, settings, margin, velocity_limit))
+                records.append(closed_loop_episode(operator, domain, goal, world, model, settings, margin, velocity_limit))
                 progress(f"goal{goal.index:03d}-{world.name}-closed_loop")
     finally:
         operator.close()
@@ -46,8 +46,10 @@ def ros_records(goals: list[Goal], model: str, settings: Settings, bag_directory
     return records
 
 
-def _closed_loop(operator: Operator, domain: int, goal: Goal, world, model: str, settings: Settings,
-                 margin_m: float, velocity_limit: np.ndarray) -> dict[str, Any]:
+def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, model: str, settings: Settings,
+                        margin_m: float, velocity_limit: np.ndarray) -> dict[str, Any]:
+    """One goal closed loop in one world: a cito-sim-robot with the world's differences beside the running executor
+    node, the goal sent from this process, judged on the simulator's true cube at rest (the bench's record)."""
     mismatch = closed_loop.world_for(world, goal)
     sim = spawn("cito-sim-robot", domain, *robot_parameters(mismatch, goal.beta, goal.index), quiet=True)
     try:
