@@ -39,8 +39,10 @@ def test_a_plan_is_tracked_in_each_scaled_world_and_the_cube_ends_elsewhere_ther
     executor = physical_twin(problem, problem.cost)
     torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
     executed = execute(executor, torques, settings.tracking)
-    assert len(executed.world_tracked_errors) == 2  # the model's own pair is the nominal tracking
-    positions = [executed.tracked_position_error_m] + [p for p, _ in executed.world_tracked_errors]
+    assert len(executed.world_tracked_errors) == 3
+    # the model's own pair is the nominal tracking, position and orientation within the tolerances
+    assert executed.world_tracked_errors[0][0] == executed.tracked_position_error_m
+    positions = [p for p, _ in executed.world_tracked_errors]
     assert all(math.isfinite(p) for p in positions) and len(set(positions)) == 3
     world = executor.simulator.in_world(0.5, 2.0)
     model, scaled = executor.scene.model, world.scene.model

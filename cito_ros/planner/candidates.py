@@ -101,9 +101,9 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
                                                       gains.reference_offset_rad, seed=12345)  # the same for every plan
     tracked = tracking.track(simulator, executor.initial_state, trajectory, gains)
     tracked_rest = tracking.held_motion(simulator, tracked.final_state, gains)
-    worlds = tracking.world_errors(simulator, executor.initial_state, trajectory, gains, executor.task)
-    return dataclasses.replace(executed, tracked_position_error_m=tracking.errors_at_rest(tracked_rest,
-                                                                                          executor.task)[0],
+    tracked_errors = tracking.errors_at_rest(tracked_rest, executor.task)
+    worlds = tracking.world_errors(simulator, executor.initial_state, trajectory, gains, executor.task, tracked_errors)
+    return dataclasses.replace(executed, tracked_position_error_m=tracked_errors[0],
                                offset_tracked_error_m=max(offset_errors, default=math.nan),
                                world_tracked_errors=tuple(worlds),
                                motions=Motions(trajectory, rest, tracked, tracked_rest))

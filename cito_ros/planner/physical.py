@@ -60,10 +60,10 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     jobs = []
     if stages.scripted.enabled:
         jobs.append(({"horizon_s": first_horizon_s}, None, f"{horizon_label(first_horizon_s)}scripted: "))
-        for i, (height_m, push_end, scale) in enumerate(stages.scripted.variants):
+        for i, (height_m, push_end, scale, gain_scale) in enumerate(stages.scripted.variants):
             horizon_s = settings.round_horizon_s(scale)
             jobs.append(({"horizon_s": horizon_s, "stages.scripted.contact_height_m": height_m,
-                          "stages.scripted.push_end_fraction": push_end}, None,
+                          "stages.scripted.push_end_fraction": push_end, "stages.scripted.gain_scale": gain_scale}, None,
                          f"{horizon_label(horizon_s)}scripted {i + 2}: "))
     jobs += [({"horizon_s": horizon_s}, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
              for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]

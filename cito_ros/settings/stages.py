@@ -63,6 +63,7 @@ class ScriptVariants:
     contact_height_m: tuple[float, ...] = setting("the variant's contact_height_m (m)")
     push_end_fraction: tuple[float, ...] = setting("the variant's push_end_fraction", positive=True)
     horizon_scale: tuple[float, ...] = setting("the variant's horizon, in horizon_s", positive=True)
+    gain_scale: tuple[float, ...] = setting("the variant's gain_scale", positive=True)
 
     def check(self, path: str) -> None:
         if len({len(getattr(self, f.name)) for f in dataclasses.fields(self)}) != 1:
@@ -70,7 +71,7 @@ class ScriptVariants:
                              f"{[f.name for f in dataclasses.fields(self)]}")
 
     def __iter__(self):
-        return iter(zip(self.contact_height_m, self.push_end_fraction, self.horizon_scale))
+        return iter(zip(self.contact_height_m, self.push_end_fraction, self.horizon_scale, self.gain_scale))
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,8 @@ class ScriptedSettings:
     joint_weights: tuple[float, ...] = setting("cost of moving each joint in the least squares (7)", positive=True)
     damping: float = setting("damping of the least squares (m^2)", positive=True)
     ik_iterations: int = setting("least-squares iterations per simulation step", minimum=1)
+    gain_scale: float = setting("the path is followed by the tracking controller with tracking.kp, kd times this",
+                                positive=True)
     variants: ScriptVariants = setting("further scripted starts where the first misses")
 
     def check(self, path: str) -> None:
