@@ -222,3 +222,23 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     assert executor.accept(job, no_closer, 0.5) is None
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and "would leave it" in executor.message
     assert executor.pushes == 1 and executor.phase is Phase.DONE
+
+
+def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution_as_succeeded(settings):
+    """The judgement after a push can disagree with the cube at rest once the arm is away: then it is not pushed
+    again. Here the first push is judged against a tolerance no push meets, and the cube after the retreat against
+    one it meets."""
+    strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
+    executor, world = started(strict)
+    while executor.phase is not Phase.RETREATING and world.time_s < 20:
+        executor.work(world.time_s)
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert executor.phase is Phase.RETREATING and executor.pushes == 1
+    executor.settings = strict.with_overrides({"task.success_position_error_m": 0.5,
+                                               "task.success_orientation_error_rad": 3.0})
+    while executor.phase is Phase.RETREATING:
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert executor.ending is Ending.SUCCEEDED and "once the arm drew back" in executor.message
+    assert executor.pushes == 1 and executor.phase is Phase.DONE
