@@ -151,8 +151,7 @@ class Executor:
                 u = kp * (self._hold_q - joints.q) - kd * joints.qdot
             scene = self.model.scene
             bias = bias_torques(scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
-            # a robot's joint limiter faults past the limit: kept within it ahead, not braked once past
-            # within the motors' limits too: u + bias within +-torque_limit
+            # kept within the speed limits ahead (a robot's limiter faults past them) and u + bias within the motors'
             return within_speed_limits(scene, self._data, u, joints.qdot, bias, SPEED_GUARD * scene.velocity_limit,
                                        self.settings.executor.speed_horizon_s) + bias
 
@@ -175,30 +174,30 @@ class Executor:
         if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
                 self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
             position, orientation = self.errors(now_s)  # at rest: the rest window's mean
-            task = self.settings.task
-            if position < task.success_position_error_m and orientation < task.success_orientation_error_rad:
-                return self._end(Ending.SUCCEEDED, f"the cube is {100 * position:.2f} cm and {orientation:.3f} rad "
-                                                   f"from the goal after {self.pushes} push(es)", None)
+            if self._succeeded(position, orientation, ""):
+                return
             if self.pushes >= self.settings.executor.max_pushes:
                 return self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                            f"{100 * position:.2f} cm and {orientation:.3f} rad from "
                                                            f"the goal", None)
-            # another push, from where the cube rests: planned from the start pose, which the planner's scripted
-            # starts are made for (from beside the cube a push starts against it)
+            # another push, planned from the start pose (from beside the cube a push starts against it)
             self.phase = Phase.RETREATING
             self._retreat = Retreat.between(now_s, joints.q, self._home_q, self.model.scene.velocity_limit,
                                             self.settings.executor)
         if self.phase is Phase.RETREATING and now_s >= self._retreat.end_s:
             self.phase, self._hold_q = Phase.PLANNING, self._home_q.copy()
-            # judged again with the arm away and the cube at rest: the judgement after the push can disagree (the
-            # main job once pushed again a cube found 0.90 cm and 0.052 rad off here, and ran 24.7 s)
-            position, orientation = self.errors(now_s)
-            task = self.settings.task
-            if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s and \
-                    position < task.success_position_error_m and orientation < task.success_orientation_error_rad:
-                return self._end(Ending.SUCCEEDED, f"the cube is {100 * position:.2f} cm and {orientation:.3f} rad "
-                                                   f"from the goal after {self.pushes} push(es), once the arm drew "
-                                                   f"back", None)
+            # judged again with the arm away: the judgement after the push can disagree (docs/ros.md)
+            if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
+                self._succeeded(*self.errors(now_s), ", once the arm drew back")
+
+    def _succeeded(self, position_m: float, orientation_rad: float, after: str) -> bool:
+        """Whether the cube at rest is within the task's tolerances; if so, the execution ends as succeeded."""
+        task = self.settings.task
+        if position_m < task.success_position_error_m and orientation_rad < task.success_orientation_error_rad:
+            self._end(Ending.SUCCEEDED, f"the cube is {100 * position_m:.2f} cm and {orientation_rad:.3f} rad from "
+                                        f"the goal after {self.pushes} push(es){after}", None)
+            return True
+        return False
 
     def _end(self, ending: Ending, message: str, hold_q: np.ndarray | None) -> None:
         self.phase, self.ending, self.message, self._pending = Phase.DONE, ending, message, None
@@ -364,13 +363,10 @@ def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
     """The planner's settings for the executor's pushes: within the time left (at most plan_time_limit_s), and a
     plan checked with the controller that will run it, the executor's servo, in the model and in the worlds of
     executor.world_*_scales (so that a push whose outcome hangs on the cube's friction and mass is not taken).
-    Its first script is made with the servo; where that plan is not sturdy, the same script made with the
-    planner's stiff gains comes next (gain_scale 1 / servo_gain_scale): those plans are sturdy in 1-3 s for goals
-    whose search otherwise ran to the limit (closed-loop --n 10 in process: first plans in a median 3.9 s against
-    8.2 s, successes 21 of 28 either way; stiff scripts first: 17 of 28, docs/experiments.md)."""
-    executor, script = settings.executor, settings.stages.scripted
+    Its first script is made with the servo, the next with the planner's stiff gains (gain_scale 1 /
+    servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes."""
+    executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
     kp, kd = (executor.servo_gain_scale * np.asarray(gains) for gains in (settings.tracking.kp, settings.tracking.kd))
-    variants = script.variants
     return settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(),
