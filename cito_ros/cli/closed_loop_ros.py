@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from cito_ros.execution.episode import TIGHT_YAW_RAD
+from cito_ros.execution.episode import TIGHT_YAW_RAD, at_goal
 from cito_ros.execution.executor import ExecuteGoal
 from cito_ros.model.scene import start_configuration
 from cito_ros.planner.builder import PushRequest, build_problem
@@ -38,7 +38,8 @@ def ros_records(goals: list[Goal], model: str, settings: Settings, bag_directory
             for world in closed_loop.WORLDS:
                 records.append(closed_loop.episode(goal, world, "open_loop", model, settings))
                 progress(f"goal{goal.index:03d}-{world.name}-open_loop")
-                records.append(closed_loop_episode(operator, domain, goal, world, model, settings, margin, velocity_limit))
+                records.append(closed_loop_episode(operator, domain, goal, world, model, settings, margin,
+                                                   velocity_limit))
                 progress(f"goal{goal.index:03d}-{world.name}-closed_loop")
     finally:
         operator.close()
@@ -60,13 +61,13 @@ def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, mode
     finally:
         stop(sim)
     task, result = settings.task, outcome.result
-    near = outcome.at_rest and outcome.position_error_m < task.success_position_error_m
     rate = result.replan_rate_hz or math.nan
     return {"goal": goal.index, "world": world.name, "mode": "closed_loop", "contact_model": model,
             "offset_m": list(mismatch.offset_m), "offset_yaw_rad": mismatch.offset_yaw_rad,
             "steady_reach_margin_m": margin_m,
-            "success": bool(near and outcome.orientation_error_rad < task.success_orientation_error_rad),
-            "success_tight": bool(near and outcome.orientation_error_rad < TIGHT_YAW_RAD),
+            "success": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad),
+            "success_tight": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad,
+                                     TIGHT_YAW_RAD),
             "position_error_m": outcome.position_error_m, "orientation_error_rad": outcome.orientation_error_rad,
             "at_rest": outcome.at_rest,
             "max_joint_speed_ratio": float(np.max(outcome.max_joint_speed / velocity_limit)),

@@ -77,7 +77,7 @@ def _goal(args, settings) -> tuple[float, float, float]:
 
 def _execute(args) -> int:
     """The push closed loop through the nodes and open loop in process, in DEMO_WORLD, side by side."""
-    from cito_ros.execution.episode import run_open_loop
+    from cito_ros.execution.episode import at_goal, run_open_loop
     from cito_ros.execution.executor import ExecuteGoal
     from cito_ros.execution.world import Mismatch, SimulatedWorld
     from cito_ros.model.scene import start_configuration
@@ -106,13 +106,12 @@ def _execute(args) -> int:
         operator.close()
         stop(node)
         stop(sim)
-    result, task = closed.result, settings.task
+    result = closed.result
     # both on the world's truth (the executor's own verdict, from the camera, is in its message below)
-    at_goal = closed.at_rest and closed.position_error_m < task.success_position_error_m and \
-        closed.orientation_error_rad < task.success_orientation_error_rad
+    arrived = at_goal(settings.task, closed.at_rest, closed.position_error_m, closed.orientation_error_rad)
     print(f"  {'':24}{'open loop':>22}{'closed loop':>22}")
     print(f"  {'at the goal (2 cm, 0.15 rad)':<28}{'yes' if opened.success else 'no':>18}"
-          f"{'yes' if at_goal else 'no':>22}")
+          f"{'yes' if arrived else 'no':>22}")
     print(f"  {'true error at rest':<28}{100 * opened.position_error_m:>11.2f} cm {opened.orientation_error_rad:.3f} rad"
           f"{100 * closed.position_error_m:>11.2f} cm {closed.orientation_error_rad:.3f} rad")
     replans = f"{result.replans} replans ({result.replan_rate_hz:.1f} Hz)" if result.replans else "no replans"

@@ -122,11 +122,17 @@ def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
                     result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s)
 
 
+def at_goal(task, at_rest: bool, position_m: float, orientation_rad: float, yaw_tolerance_rad: float | None = None
+            ) -> bool:
+    """A push's verdict on the world's truth: at rest within the task's tolerances (or yaw_tolerance_rad)."""
+    yaw_tolerance_rad = task.success_orientation_error_rad if yaw_tolerance_rad is None else yaw_tolerance_rad
+    return bool(at_rest and position_m < task.success_position_error_m and orientation_rad < yaw_tolerance_rad)
+
+
 def _episode(mode: str, settings: Settings, position: float, orientation: float, at_rest: bool, *rest) -> Episode:
     task = settings.task
-    near = at_rest and position < task.success_position_error_m
-    return Episode(mode, near and orientation < task.success_orientation_error_rad,
-                   near and orientation < TIGHT_YAW_RAD, position, orientation, at_rest, *rest)
+    return Episode(mode, at_goal(task, at_rest, position, orientation),
+                   at_goal(task, at_rest, position, orientation, TIGHT_YAW_RAD), position, orientation, at_rest, *rest)
 
 
 def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal, rest_speed_m_s: float) -> tuple[float, float, bool]:

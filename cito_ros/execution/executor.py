@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator
-from cito_ros.execution.mpc import PushModel
+from cito_ros.execution.mpc import PushModel, servo_gains
 from cito_ros.execution.policy import Policy, bias_torques, within_speed_limits
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.planner import push_limits
@@ -366,7 +366,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
     Its first script is made with the servo, the next with the planner's stiff gains (gain_scale 1 /
     servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes."""
     executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
-    kp, kd = (executor.servo_gain_scale * np.asarray(gains) for gains in (settings.tracking.kp, settings.tracking.kd))
+    kp, kd = servo_gains(settings)
     return settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(),

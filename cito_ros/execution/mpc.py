@@ -31,6 +31,12 @@ from cito_ros.settings import SceneConfig, Settings
 REPLAN_STAGE = 1  # the physical stage whose weights the replans take: the one every start runs after its first
 
 
+def servo_gains(settings: Settings) -> tuple[np.ndarray, np.ndarray]:
+    """The executor's joint servo: tracking.kp and kd times executor.servo_gain_scale."""
+    scale = settings.executor.servo_gain_scale
+    return scale * np.asarray(settings.tracking.kp), scale * np.asarray(settings.tracking.kd)
+
+
 class PushModel:
     """The planner's model of one push (see the module docstring)."""
 
@@ -42,8 +48,7 @@ class PushModel:
         self.resting_state = self.scene.initial_state(start_configuration(settings.beta))
         self.task = make_task(self.scene, self.resting_state, target_position_m, target_yaw_rad, settings)
         self.control_period_s = settings.control_period_s
-        scale = settings.executor.servo_gain_scale
-        self.servo_gains = (scale * np.asarray(settings.tracking.kp), scale * np.asarray(settings.tracking.kd))
+        self.servo_gains = servo_gains(settings)
         self._simulators: dict[int, Simulator] = {}
 
     def problem(self, state: np.ndarray, knots: int, torques: np.ndarray) -> PushProblem:

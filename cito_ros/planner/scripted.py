@@ -126,8 +126,7 @@ def scripted_torques(problem, script: ScriptedSettings, gains: TrackingSettings)
     """(N, 7) knot torques: the PD controller's (gains, kp and kd times script.gain_scale) torques tracking
     joint_path, object contact included, averaged over each knot."""
     simulator = problem.simulator
-    if script.gain_scale != 1.0:
-        gains = dataclasses.replace(gains, kp=tuple(script.gain_scale * k for k in gains.kp),
-                                    kd=tuple(script.gain_scale * k for k in gains.kd))
+    gains = dataclasses.replace(gains, kp=tuple(script.gain_scale * k for k in gains.kp),
+                                kd=tuple(script.gain_scale * k for k in gains.kd))
     executed = tracking.track(simulator, problem.initial_state, joint_path(problem, script), gains)
     return executed.control_torque_Nm.reshape(simulator.n_knots, simulator.steps_per_knot, -1).mean(axis=1)
