@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cito_ros.execution.estimator import StateEstimator
-from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Phase
+from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Phase, compute
 from cito_ros.execution.policy import bias_torques, state_difference
 from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld
 from cito_ros.model.scene import start_configuration
@@ -242,3 +242,32 @@ def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution
         deliver(executor, world)
     assert executor.ending is Ending.SUCCEEDED and "once the arm drew back" in executor.message
     assert executor.pushes == 1 and executor.phase is Phase.DONE
+
+
+def test_an_execution_begun_with_the_arm_against_the_cube_draws_it_back_to_the_start_pose_and_pushes_from_there(
+        settings):
+    """The last execution was cancelled at the end of its push, the arm against the cube: a push planned from there
+    would start in the cube. The next execution draws the arm back to the start pose of beta first, the cube left
+    where it is, and plans its push from there."""
+    home = start_configuration(settings.beta)
+    executor, world = started(settings)
+    while executor.phase is not Phase.SETTLING and world.time_s < 20:
+        executor.work(world.time_s)
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    executor.cancel()
+    assert world.scene.arm_clearance(world.data, 0.01)[0] < settings.executor.start_clearance_m
+    follow_up = Executor(settings, dataclasses.replace(GOAL, target_position_m=(1.13, 0.03)))
+    while not follow_up.estimator.has_pose:
+        world.step(executor.command(world.time_s))  # the cancelled execution holds the arm
+        deliver(follow_up, world)
+    cube_before = world.true_object_pose()[0]
+    assert follow_up.job(world.time_s) is None and follow_up.phase is Phase.RETREATING
+    while follow_up.phase is Phase.RETREATING:
+        world.step(follow_up.command(world.time_s))
+        deliver(follow_up, world)
+    assert follow_up.phase is Phase.PLANNING and np.abs(world.joints().q - home).max() < 0.05
+    assert np.linalg.norm(world.true_object_pose()[0][:2] - cube_before[:2]) < 0.003  # the cube not dragged along
+    job = follow_up.job(world.time_s)
+    assert job is not None and job.kind == "plan" and np.abs(job.q - home).max() < 0.05
+    assert not isinstance(compute(settings, follow_up.goal, job), Failure)

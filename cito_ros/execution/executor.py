@@ -12,8 +12,10 @@ Phases: `planning` (the arm held while a push is planned), `pushing` (the policy
 held at the push's end until the cube has come to rest; then the push is judged by the camera: at the goal,
 done; else, while pushes and time are left, `retreating`: the arm goes back along a minimum-jerk path to where
 the execution started, and a new push is planned from there, made only if the model predicts it brings the
-cube closer), `done`. Measurements older than executor.stale_after_s, a cancel, the time limit or a push that
-cannot be planned end the execution with the arm held where it is.
+cube closer), `done`. An execution begun with the arm against the cube (where the last one ended or was
+cancelled) begins `retreating` to the start pose of settings.beta. Measurements older than
+executor.stale_after_s, a cancel, the time limit or a push that cannot be planned end the execution with the arm
+held where it is.
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator
 from cito_ros.execution.mpc import PushModel, servo_gains
-from cito_ros.execution.policy import Policy, bias_torques, within_speed_limits
+from cito_ros.execution.policy import Policy, Retreat, bias_torques, within_speed_limits
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
@@ -237,8 +239,14 @@ class Executor:
                 return None
             if self.phase is not Phase.PLANNING and not (self.phase is Phase.PUSHING and executor.replan):
                 return None
-            return Job("plan" if self.phase is Phase.PLANNING else "replan", now_s,
-                       self.estimator.state(self._joints, now_s), self._joints.q.copy(),
+            state = self.estimator.state(self._joints, now_s)
+            back_q = self.model.draw_back_q(state) if self.phase is Phase.PLANNING and not self._retreat else None
+            if back_q is not None:  # the arm begins against the cube: drawn back first, its pushes start there
+                self.phase, self._home_q = Phase.RETREATING, back_q
+                self._retreat = Retreat.between(now_s, self._joints.q, back_q, self.model.scene.velocity_limit,
+                                                executor)
+                return None
+            return Job("plan" if self.phase is Phase.PLANNING else "replan", now_s, state, self._joints.q.copy(),
                        self.object_pose(now_s), self.time_limit_s - (now_s - self.started_s),
                        self.policy, self._push_end_s)
 
@@ -291,32 +299,6 @@ class Executor:
     def replan_rate_hz(self) -> float:
         """Replans a second while replanning back to back: 1 / the median compute time of one (NaN: none)."""
         return 1.0 / float(np.median(self.replan_seconds)) if self.replan_seconds else math.nan
-
-
-@dataclass(frozen=True)
-class Retreat:
-    """A minimum-jerk joint path from one pose to another, on the robot's clock."""
-
-    start_s: float
-    end_s: float
-    from_q: np.ndarray
-    to_q: np.ndarray
-
-    @classmethod
-    def between(cls, start_s: float, from_q: np.ndarray, to_q: np.ndarray, velocity_limit: np.ndarray,
-                settings) -> Retreat:
-        """Slow enough that no joint passes settings.retreat_speed_fraction of its limit (a minimum-jerk path's
-        peak speed is 1.875 times its mean), and at least settings.retreat_min_s long."""
-        fastest = float(np.max(1.875 * np.abs(to_q - from_q) / (settings.retreat_speed_fraction * velocity_limit)))
-        return cls(start_s, start_s + max(settings.retreat_min_s, fastest), from_q.copy(), to_q.copy())
-
-    def at(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """The joint positions and velocities at time_s."""
-        duration = self.end_s - self.start_s
-        s = min(max((time_s - self.start_s) / duration, 0.0), 1.0)
-        step = self.to_q - self.from_q
-        return self.from_q + (10 * s**3 - 15 * s**4 + 6 * s**5) * step, \
-            (30 * s**2 - 60 * s**3 + 30 * s**4) / duration * step
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ import dataclasses
 import math
 import time
 
+import mujoco
 import numpy as np
 
 from cito_ros.execution.policy import Policy
@@ -50,6 +51,21 @@ class PushModel:
         self.control_period_s = settings.control_period_s
         self.servo_gains = servo_gains(settings)
         self._simulators: dict[int, Simulator] = {}
+        self._data = mujoco.MjData(self.scene.model)
+
+    def draw_back_q(self, state: np.ndarray) -> np.ndarray | None:
+        """The scene's start pose (settings.beta) when the arm in `state` is within executor.start_clearance_m of
+        the cube (an execution begun where a last one ended or was cancelled: a push planned from against the cube
+        would start in it) and that pose is clear of the cube by more; None otherwise."""
+        clearance_m, data, model = self.settings.executor.start_clearance_m, self._data, self.scene.model
+        mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        mujoco.mj_forward(model, data)
+        if self.scene.arm_clearance(data, clearance_m)[0] >= clearance_m:
+            return None
+        home_q = start_configuration(self.settings.beta)
+        data.qpos[self.scene.arm_qpos_adr] = home_q
+        mujoco.mj_forward(model, data)
+        return home_q if self.scene.arm_clearance(data, clearance_m)[0] >= clearance_m else None
 
     def problem(self, state: np.ndarray, knots: int, torques: np.ndarray) -> PushProblem:
         """The push from `state` over `knots` knots without the virtual force, its contact term from where

@@ -10,6 +10,8 @@ then velocities: the arm's joints and the cube's free joint), and K the knot's f
 .solvers.ilqr: the gains of the backward pass, on the whole state, arm and cube), interpolated linearly from
 one knot's to the next. These are the torques u of the planner's model, in which the motors add the arm's
 bias forces (gravity, Coriolis): a robot that adds none gets u plus those, computed from the model.
+
+`Retreat` is the other path the executor has the arm follow: a slow minimum-jerk joint path between poses.
 """
 from __future__ import annotations
 
@@ -110,3 +112,29 @@ def within_speed_limits(scene: Scene, data: mujoco.MjData, u: np.ndarray, qdot: 
     up, down = step_Nm > 0, step_Nm < 0
     room = np.concatenate([(high_Nm - rest_Nm)[up] / step_Nm[up], (low_Nm - rest_Nm)[down] / step_Nm[down], [1.0]])
     return np.clip(rest_Nm + float(np.clip(np.min(room), 0.0, 1.0)) * step_Nm, low_Nm, high_Nm)
+
+
+@dataclass(frozen=True)
+class Retreat:
+    """A minimum-jerk joint path from one pose to another, on the robot's clock."""
+
+    start_s: float
+    end_s: float
+    from_q: np.ndarray
+    to_q: np.ndarray
+
+    @classmethod
+    def between(cls, start_s: float, from_q: np.ndarray, to_q: np.ndarray, velocity_limit: np.ndarray,
+                settings) -> Retreat:
+        """Slow enough that no joint passes settings.retreat_speed_fraction of its limit (a minimum-jerk path's
+        peak speed is 1.875 times its mean), and at least settings.retreat_min_s long."""
+        fastest = float(np.max(1.875 * np.abs(to_q - from_q) / (settings.retreat_speed_fraction * velocity_limit)))
+        return cls(start_s, start_s + max(settings.retreat_min_s, fastest), from_q.copy(), to_q.copy())
+
+    def at(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The joint positions and velocities at time_s."""
+        duration = self.end_s - self.start_s
+        s = min(max((time_s - self.start_s) / duration, 0.0), 1.0)
+        step = self.to_q - self.from_q
+        return self.from_q + (10 * s**3 - 15 * s**4 + 6 * s**5) * step, \
+            (30 * s**2 - 60 * s**3 + 30 * s**4) / duration * step

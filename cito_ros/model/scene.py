@@ -304,6 +304,18 @@ class Scene:
         """The arm's joint velocities in a state or (..., nstate) states."""
         return state[..., self.state_qvel_adr + self.arm_dof_adr]
 
+    def arm_clearance(self, data: mujoco.MjData, within_m: float) -> tuple[float, str]:
+        """The smallest signed distance (m) from an arm geom to the object in a forward-computed mjData, and that
+        geom's name; (within_m, "") when none is nearer."""
+        nearest, name = within_m, ""
+        for geom in range(self.model.ngeom):
+            if self.model.geom_bodyid[geom] in (0, self.object_body_id):
+                continue
+            distance = mujoco.mj_geomDistance(self.model, data, geom, self.object_geom_id, within_m, None)
+            if distance < nearest:
+                nearest, name = distance, self.model.geom(geom).name
+        return nearest, name
+
     def object_pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Object position (m) and orientation quaternion (w, x, y, z), world frame."""
         qpos = data.qpos[self.object_qpos_adr:self.object_qpos_adr + 7]

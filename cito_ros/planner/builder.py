@@ -10,7 +10,6 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from cito_ros.model.contact_models import contact_model
@@ -109,16 +108,10 @@ def check_object_start(scene: Scene, start_q: np.ndarray) -> None:
     if np.linalg.norm(centre) > reach:
         raise ValueError(f"object pose ({centre[0]:.3f}, {centre[1]:.3f}) m is {np.linalg.norm(centre):.3f} m from "
                          f"the arm base, beyond the {reach:.3f} m the arm can push it from")
-    data = scene.data_at(start_q)
-    model = scene.model
-    for geom in range(model.ngeom):
-        if model.geom_bodyid[geom] in (0, scene.object_body_id):
-            continue
-        distance = mujoco.mj_geomDistance(model, data, geom, scene.object_geom_id, 0.01, None)
-        if distance < 0:
-            raise ValueError(f"object pose ({centre[0]:.3f}, {centre[1]:.3f}) m, yaw {obj.yaw_rad:.3f} rad: the "
-                             f"object intersects the arm's {model.geom(geom).name} at its start pose "
-                             f"(by {-distance * 1000:.1f} mm)")
+    distance, geom = scene.arm_clearance(scene.data_at(start_q), 0.01)
+    if distance < 0:
+        raise ValueError(f"object pose ({centre[0]:.3f}, {centre[1]:.3f}) m, yaw {obj.yaw_rad:.3f} rad: the object "
+                         f"intersects the arm's {geom} at its start pose (by {-distance * 1000:.1f} mm)")
 
 
 def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target_yaw_rad: float,

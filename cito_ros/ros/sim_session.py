@@ -132,21 +132,31 @@ class Operator:
         return self.wait(self.action.send_goal_async(message, feedback_callback=lambda m: self.feedback.append(
             m.feedback)), 30.0)
 
-    def execute(self, goal: ExecuteGoal, rest_speed_m_s: float, start_tries: int = 10) -> Outcome:
-        """One execution to its end, then the true cube awaited at rest (at most REST_WAIT_S). A goal refused
-        because the node has no fresh measurements yet (a robot just started: DDS discovery takes the node
-        longer than this client) is sent again a second later, start_tries times at most."""
-        for _ in range(start_tries):
+    def start(self, goal: ExecuteGoal, tries: int = 10):
+        """The handle of an execution of `goal` that has begun (its first feedback arrived), or of one that ended
+        before any. A goal refused because the node has no fresh measurements yet (a robot just started: DDS
+        discovery takes the node longer than this client) is sent again a second later, `tries` times at most."""
+        for _ in range(tries):
             self.feedback.clear()
             self.joints.clear()
-            began = time.monotonic()
             handle = self.send(goal)
             if not handle.accepted:
                 raise RuntimeError("the executor node rejected the goal")
-            result = self.wait(handle.get_result_async()).result
-            if result.status != ExecutePush.Result.STATUS_STALE_MEASUREMENTS or self.feedback:
+            ending = handle.get_result_async()
+            deadline = time.monotonic() + RESULT_TIMEOUT_S
+            while not (self.feedback or ending.done()) and time.monotonic() < deadline:
+                self.executor.spin_once(timeout_sec=0.02)
+            if self.feedback or not ending.done() or \
+                    ending.result().result.status != ExecutePush.Result.STATUS_STALE_MEASUREMENTS:
                 break
             self.spin(1.0)
+        return handle
+
+    def execute(self, goal: ExecuteGoal, rest_speed_m_s: float, start_tries: int = 10) -> Outcome:
+        """One execution to its end (begun as `start` does), then the true cube awaited at rest (at most
+        REST_WAIT_S)."""
+        began = time.monotonic()
+        result = self.wait(self.start(goal, start_tries).get_result_async()).result
         round_trip = time.monotonic() - began
         speeds = np.max([np.abs(m.velocity) for m in self.joints], axis=0) if self.joints else np.zeros(7)
         at_rest, deadline = False, time.monotonic() + REST_WAIT_S

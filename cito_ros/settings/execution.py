@@ -77,6 +77,8 @@ class ExecutorSettings:
                                             "started, no joint faster than this fraction of its velocity limit",
                                             positive=True)
     retreat_min_s: float = setting("and taking at least this long (s)", positive=True)
+    start_clearance_m: float = setting("an execution begun with the arm nearer the cube than this first draws it back "
+                                       "to the start pose of beta, where its pushes then start (m)", positive=True)
     speed_horizon_s: float = setting("the executor keeps every joint within SPEED_GUARD of its velocity limit this "
                                      "far ahead: the arm's accelerations are clipped to those that cannot pass it "
                                      "by then (s; at least the loop's delay)", positive=True)
