@@ -10,7 +10,7 @@ import pytest
 
 from cito_ros.execution.estimator import StateEstimator
 from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Phase, compute
-from cito_ros.execution.policy import bias_torques, state_difference
+from cito_ros.execution.policy import Policy, bias_torques, state_difference
 from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld
 from cito_ros.model.scene import start_configuration
 
@@ -23,9 +23,9 @@ def deliver(executor: Executor, world: SimulatedWorld) -> None:
         executor.on_pose(reading, world.time_s)
 
 
-def started(settings, mismatch=Mismatch()) -> tuple[Executor, SimulatedWorld]:
+def started(settings, mismatch=Mismatch(), goal: ExecuteGoal = GOAL) -> tuple[Executor, SimulatedWorld]:
     """An executor and its world, the camera's first pose in."""
-    world, executor = SimulatedWorld(settings, mismatch, start_configuration(7)), Executor(settings, GOAL)
+    world, executor = SimulatedWorld(settings, mismatch, start_configuration(7)), Executor(settings, goal)
     deliver(executor, world)
     while not executor.estimator.has_pose:
         joints = world.joints()
@@ -217,11 +217,36 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     assert np.linalg.norm(world.true_object_pose()[0][:2] - cube_before[:2]) < 0.003  # the cube not dragged along
     job = executor.job(world.time_s)
     assert job is not None and job.kind == "plan" and np.abs(job.q - home).max() < 0.05
-    position, _ = executor.goal.errors(*job.object_pose)
-    no_closer = dataclasses.replace(executor.policy, predicted_error_m=position + 1e-3)
+    no_closer = ending_at(executor, executor.policy, *job.object_pose)  # the cube predicted to stay where it is
     assert executor.accept(job, no_closer, 0.5) is None
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and "would leave it" in executor.message
     assert executor.pushes == 1 and executor.phase is Phase.DONE
+
+
+def ending_at(executor: Executor, policy: Policy, position_m, yaw_rad: float) -> Policy:
+    """`policy` with the cube predicted at (x, y), yaw_rad at its end."""
+    reference = policy.reference.copy()
+    cube = executor.model.scene.object_qpos(reference[-1])
+    cube[:2], cube[3:7] = position_m, [math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)]
+    return dataclasses.replace(policy, reference=reference)
+
+
+def test_a_next_push_that_would_turn_a_cube_at_the_place_to_the_goal_is_made(settings):
+    """The cube rests at the goal's place but 0.25 rad from its yaw: a next push predicted to leave it 1 cm off
+    and 0.05 rad from the yaw brings it closer (both errors against their tolerances) and is made; one predicted
+    to leave it where it is, or 0.5 cm off and 0.3 rad from the yaw, is not."""
+    for (off_m, yaw_error_rad), made in (((0.01, 0.05), True), ((0.0, 0.25), False), ((0.005, 0.3), False)):
+        (x, y), yaw = settings.scene.object.position_m, settings.scene.object.yaw_rad  # where the cube rests
+        goal = dataclasses.replace(GOAL, target_position_m=(x, y), target_yaw_rad=yaw + 0.25)
+        turned, world = started(settings, goal=goal)
+        turned.pushes = 1  # as after a first push that left the cube turned
+        job = turned.job(world.time_s)
+        assert job is not None and job.kind == "plan"
+        policy = Policy(world.time_s, settings.control_period_s, world.timestep_s, np.zeros((4, 7)),
+                        np.zeros((4, 7, len(job.state))), np.repeat(job.state[None], 5, axis=0))
+        outcome = ending_at(turned, policy, (x + off_m, y), goal.target_yaw_rad - yaw_error_rad)
+        assert (turned.accept(job, outcome, 0.1) is not None) is made, turned.message
+        assert turned.phase is (Phase.PLANNING if made else Phase.DONE)
 
 
 def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution_as_succeeded(settings):

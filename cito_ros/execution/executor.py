@@ -12,10 +12,10 @@ Phases: `planning` (the arm held while a push is planned), `pushing` (the policy
 held at the push's end until the cube has come to rest; then the push is judged by the camera: at the goal,
 done; else, while pushes and time are left, `retreating`: the arm goes back along a minimum-jerk path to where
 the execution started, and a new push is planned from there, made only if the model predicts it brings the
-cube closer), `done`. An execution begun with the arm against the cube (where the last one ended or was
-cancelled) begins `retreating` to the start pose of settings.beta. Measurements older than
-executor.stale_after_s, a cancel, the time limit or a push that cannot be planned end the execution with the arm
-held where it is.
+cube closer (both errors against their tolerances)), `done`. An execution begun with the arm against the cube
+(where the last one ended or was cancelled) begins `retreating` to the start pose of settings.beta. Measurements
+older than executor.stale_after_s, a cancel, the time limit or a push that cannot be planned end the execution
+with the arm held where it is.
 """
 from __future__ import annotations
 
@@ -29,14 +29,14 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cito_ros.execution.estimator import StateEstimator
+from cito_ros.execution.estimator import StateEstimator, yaw_of
 from cito_ros.execution.mpc import PushModel, servo_gains
 from cito_ros.execution.policy import Policy, Retreat, bias_torques, within_speed_limits
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import Status
+from cito_ros.planner.results import Status, tolerance_ratio
 from cito_ros.settings import SceneConfig, Settings
 
 SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
@@ -266,12 +266,18 @@ class Executor:
             if outcome is None:
                 return None
             position, orientation = self.goal.errors(*job.object_pose)
-            if job.kind == "plan" and self.pushes and outcome.predicted_error_m >= position:
-                # a push that would not bring the cube closer is not made, nor left to run out the time
+            cube = self.model.scene.object_qpos(outcome.final_state)
+            predicted = self.goal.errors(cube[:2], yaw_of(cube[3:7]))
+            task = self.settings.task
+            if job.kind == "plan" and self.pushes and \
+                    tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task):
+                # a push that would not bring the cube closer (both errors against their tolerances: a cube
+                # at the place but turned is brought closer by a push that turns it) is not made, nor left to
+                # run out the time
                 self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is {100 * position:.2f} "
                                                     f"cm and {orientation:.3f} rad from the goal, and the best push "
                                                     f"found from the near face would leave it "
-                                                    f"{100 * outcome.predicted_error_m:.2f} cm off",
+                                                    f"{100 * predicted[0]:.2f} cm and {predicted[1]:.3f} rad off",
                           None if self._joints is None else self._joints.q)
                 return None
             effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start

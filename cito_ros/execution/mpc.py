@@ -109,7 +109,7 @@ class PushModel:
         gains[:, np.arange(7), arm] = -self.servo_gains[0]
         gains[:, np.arange(7), nv + arm] = -self.servo_gains[1]
         return Policy(start_s, self.control_period_s, problem.simulator.timestep_s, np.array(torques, dtype=float),
-                      gains, np.vstack([state[None], evaluation.states]), evaluation.position_error_m)
+                      gains, np.vstack([state[None], evaluation.states]))
 
     def predict(self, state: np.ndarray, running: Policy, from_s: float, steps: int) -> np.ndarray:
         """The model's state `steps` simulation steps after `state` (at from_s) under the running policy's

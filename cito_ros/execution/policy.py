@@ -31,7 +31,6 @@ class Policy:
     torques_Nm: np.ndarray       # (N, 7) u_ref per knot
     gains: np.ndarray            # (N, 7, nx) K per knot, nx = 2 nv
     reference: np.ndarray        # (T + 1, nstate) x_ref at every step of the planner's model, T = N * steps
-    predicted_error_m: float     # the planner model's position error of this plan at its end
 
     @property
     def end_s(self) -> float:

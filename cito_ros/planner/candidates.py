@@ -62,8 +62,8 @@ class Executed:
         sturdy = not settings.tracking.reference_offsets or all(
             error < task.success_position_error_m for error in (self.tracked_position_error_m,
                                                                  self.offset_tracked_error_m))
-        worst_world = max((_within(position, orientation, task) for position, orientation in self.world_tracked_errors),
-                          default=0.0)
+        worst_world = max((results.tolerance_ratio(position, orientation, task)
+                           for position, orientation in self.world_tracked_errors), default=0.0)
         sturdy = sturdy and worst_world < 1.0
         return (beyond_limits, not at_goal, not trackable, not sturdy, worst_world,
                 self.position_error_m / task.success_position_error_m
@@ -107,13 +107,6 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
                                offset_tracked_error_m=max(offset_errors, default=math.nan),
                                world_tracked_errors=tuple(worlds),
                                motions=Motions(trajectory, rest, tracked, tracked_rest))
-
-
-def _within(position_m: float, orientation_rad: float, task) -> float:
-    """The larger of the errors as fractions of their success tolerances (below 1: at the goal; inf: NaN)."""
-    if not (math.isfinite(position_m) and math.isfinite(orientation_rad)):
-        return math.inf
-    return max(position_m / task.success_position_error_m, orientation_rad / task.success_orientation_error_rad)
 
 
 def judge(executor: PushProblem, evaluation, gains: TrackingSettings) -> Executed:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -133,6 +134,13 @@ def within_limits(max_joint_speed_ratio: float, joint_range_excess_rad: float) -
     """Every joint within its velocity limit (a ratio of at most 1.0: a robot faults or clamps beyond it) and
     within its range."""
     return max_joint_speed_ratio <= 1.0 and joint_range_excess_rad == 0.0
+
+
+def tolerance_ratio(position_m: float, orientation_rad: float, task: TaskSettings) -> float:
+    """The larger of the errors as fractions of their success tolerances (below 1: at the goal; inf: NaN)."""
+    if not (math.isfinite(position_m) and math.isfinite(orientation_rad)):
+        return math.inf
+    return max(position_m / task.success_position_error_m, orientation_rad / task.success_orientation_error_rad)
 
 
 def at_goal(position_error_m: float, orientation_error_rad: float, rest_object_speed_m_s: float, task: TaskSettings,

@@ -208,17 +208,27 @@ class ExecutorNode(Node):
         self._bag, self._executor = bag, executor
         self.get_logger().info(f"execution {self._executions}: {model} to ({position[0]:.3f}, {position[1]:.3f}) m, "
                                f"yaw {yaw:.3f} rad")
-        next_feedback = now
+        next_feedback, phase = now, executor.phase
         try:
             while executor.phase is not Phase.DONE:
                 now = time.time()
+                if executor.phase is not phase:  # the execution's course in the log: what each push left
+                    phase, (position, orientation) = executor.phase, executor.errors(now)
+                    self.get_logger().info(f"execution {self._executions}: {phase.value} at "
+                                           f"{now - executor.started_s:.1f} s, the cube {100 * position:.2f} cm "
+                                           f"and {orientation:.3f} rad from the goal")
                 if goal_handle.is_cancel_requested or self.stopping.is_set():
                     executor.cancel()
                     break
                 job = executor.job(now)
                 if job is not None:  # computed in the planner's process: the control here is never starved of it
                     outcome = self._planner.submit(compute, self.settings, executor.goal, job).result()
-                    work = executor.accept(job, outcome, time.time() - now)
+                    elapsed = time.time() - now
+                    work = executor.accept(job, outcome, elapsed)
+                    if job.kind == "plan":
+                        self.get_logger().info(f"execution {self._executions}: push {executor.pushes} planned in "
+                                               f"{elapsed:.1f} s" if work else f"execution {self._executions}: "
+                                               f"no push made after {elapsed:.1f} s of planning")
                     if work is not None:
                         self._publish_prediction(work.policy, bag)
                 else:
