@@ -194,8 +194,7 @@ class Executor:
 
     def _succeeded(self, position_m: float, orientation_rad: float, after: str) -> bool:
         """Whether the cube at rest is within the task's tolerances; if so, the execution ends as succeeded."""
-        task = self.settings.task
-        if position_m < task.success_position_error_m and orientation_rad < task.success_orientation_error_rad:
+        if tolerance_ratio(position_m, orientation_rad, self.settings.task) < 1.0:
             self._end(Ending.SUCCEEDED, f"the cube is {100 * position_m:.2f} cm and {orientation_rad:.3f} rad from "
                                         f"the goal after {self.pushes} push(es){after}", None)
             return True
@@ -265,21 +264,22 @@ class Executor:
                 return None
             if outcome is None:
                 return None
-            position, orientation = self.goal.errors(*job.object_pose)
-            cube = self.model.scene.object_qpos(outcome.final_state)
-            predicted = self.goal.errors(cube[:2], yaw_of(cube[3:7]))
-            task = self.settings.task
-            if job.kind == "plan" and self.pushes and \
-                    tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task):
+            if job.kind == "plan" and self.pushes:
                 # a push that would not bring the cube closer (both errors against their tolerances: a cube
                 # at the place but turned is brought closer by a push that turns it) is not made, nor left to
                 # run out the time
-                self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is {100 * position:.2f} "
-                                                    f"cm and {orientation:.3f} rad from the goal, and the best push "
-                                                    f"found from the near face would leave it "
-                                                    f"{100 * predicted[0]:.2f} cm and {predicted[1]:.3f} rad off",
-                          None if self._joints is None else self._joints.q)
-                return None
+                position, orientation = self.goal.errors(*job.object_pose)
+                cube = self.model.scene.object_qpos(outcome.final_state)
+                predicted = self.goal.errors(cube[:2], yaw_of(cube[3:7]))
+                task = self.settings.task
+                if tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task):
+                    self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
+                                                        f"{100 * position:.2f} cm and {orientation:.3f} rad from the "
+                                                        f"goal, and the best push found from the near face would "
+                                                        f"leave it {100 * predicted[0]:.2f} cm and "
+                                                        f"{predicted[1]:.3f} rad off",
+                              None if self._joints is None else self._joints.q)
+                    return None
             effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start
             if job.kind == "plan":  # a fresh push starts from rest when it is ready: its time 0 is then
                 outcome, self.pushes = dataclasses.replace(outcome, start_s=effective), self.pushes + 1

@@ -226,9 +226,9 @@ class ExecutorNode(Node):
                     elapsed = time.time() - now
                     work = executor.accept(job, outcome, elapsed)
                     if job.kind == "plan":
-                        self.get_logger().info(f"execution {self._executions}: push {executor.pushes} planned in "
-                                               f"{elapsed:.1f} s" if work else f"execution {self._executions}: "
-                                               f"no push made after {elapsed:.1f} s of planning")
+                        made = f"push {executor.pushes} planned in {elapsed:.1f} s" if work else \
+                            f"no push made after {elapsed:.1f} s of planning"
+                        self.get_logger().info(f"execution {self._executions}: {made}")
                     if work is not None:
                         self._publish_prediction(work.policy, bag)
                 else:
