@@ -296,3 +296,18 @@ def test_an_execution_begun_with_the_arm_against_the_cube_draws_it_back_to_the_s
     job = follow_up.job(world.time_s)
     assert job is not None and job.kind == "plan" and np.abs(job.q - home).max() < 0.05
     assert not isinstance(compute(settings, follow_up.goal, job), Failure)
+
+
+def test_a_cube_pushed_past_the_goal_ends_the_execution_as_not_achieved_without_a_search(settings):
+    """After a push that left the cube 6 cm beyond the goal, a next push would have to pull it back: it is refused
+    before any search, and the execution ends as not achieved, with the reason."""
+    executor, world = started(settings)
+    executor.pushes = 1  # as after a first push
+    job = executor.job(world.time_s)
+    assert job is not None and job.kind == "plan"
+    overshot = dataclasses.replace(job, object_pose=(np.array([GOAL.target_position_m[0] + 0.06,
+                                                               GOAL.target_position_m[1]]), GOAL.target_yaw_rad))
+    outcome = compute(settings, GOAL, overshot)
+    assert isinstance(outcome, Failure) and "behind the object's pushed face" in outcome.message
+    assert executor.accept(overshot, outcome, 0.01) is None
+    assert executor.ending is Ending.TASK_NOT_ACHIEVED and "6.0 cm behind" in executor.message

@@ -97,6 +97,7 @@ BAD_REQUESTS = {
     "joint limit": (request(start=[0, 0, 0, 9.0, 0, 0, 0]), "outside its range"),
     "off the table": (request(x=1.95), "off the table"),
     "beyond reach": (request(x=1.25, y=0.4), "beyond the 1.249 m the arm can push"),
+    "pull back": (request(x=0.89), "target is 10.0 cm behind the object's pushed face"),
     "negative time limit": (request(time_limit=-1.0), "time_limit_s must be a non-negative number"),
     "tilted object": (request(object_pose=(0.99, 0.0, 0.1, (0.0, 0.01, 0.0, 1.0))), "object_pose.orientation must be "
                       "a rotation about z"),

@@ -64,3 +64,21 @@ class TestReach:
         reach = scenes["vscm"].push_reach_m()
         with pytest.raises(ValueError, match=rf"beyond the {reach:.3f} m the arm can push the object's centre to"):
             plan_push("vscm", 7, settings=settings, target_position_m=[reach + 0.01, 0.0])
+
+    def test_a_goal_behind_the_pushed_face_is_refused_with_how_far(self, settings):
+        """Pushing on the cube's near face moves it away from that face: a goal 10 cm back towards the arm is
+        refused before anything is solved."""
+        with pytest.raises(ValueError, match=r"target is 10.0 cm behind the object's pushed face"):
+            plan_push("vscm", 7, settings=settings, target_position_m=[0.89, 0.0])
+
+    def test_the_pushed_face_is_the_cube_s_own_wherever_it_is_turned(self, settings):
+        """A goal straight beside the cube is a side push for a cube square to the arm, and a goal 5.6 cm behind
+        the pushed face of one turned by 0.6 rad; a goal within the position tolerance behind it (a turn in
+        place) is posed."""
+        sideways = PushRequest("vscm", 7, None, [0.99, -0.10], 0.0, None, ((0.99, 0.0), 0.0))
+        assert build_problem(settings, sideways).task is not None
+        turned = PushRequest("vscm", 7, None, [0.99, -0.10], 0.0, None, ((0.99, 0.0), 0.6))
+        with pytest.raises(ValueError, match=r"target is 5.6 cm behind the object's pushed face"):
+            build_problem(settings, turned)
+        in_place = PushRequest("vscm", 7, None, [0.975, 0.0], 0.5, None, ((0.99, 0.0), 0.0))
+        assert build_problem(settings, in_place).task is not None

@@ -8,6 +8,9 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 from cito_ros.planner.results import PHASE_METRICS
 from cito_ros.settings import load_settings
 from cito_ros.studies import sweep, targets
@@ -33,7 +36,7 @@ def test_a_sweep_gives_the_same_records_on_ray_and_in_process():
     assert not any(r.get("failed") for r in on_ray + in_process)
     # the threaded in-process solve and the single-threaded Ray task plan the same bits
     assert [without_timings(r) for r in on_ray] == [without_timings(r) for r in in_process]
-    report = targets.report(on_ray, [], targets.push_reach_m(settings))
+    report = targets.report(on_ray, [], targets.region(settings))
     assert set(report["models"]) == {"scm", "vscm"} and report["models"]["scm"]["goals"] == 4
     for model, split in report["by_zone"]["models"].items():
         assert split["steady"]["goals"] + split["strike"]["goals"] == 4
@@ -137,3 +140,44 @@ def test_a_rerun_with_the_same_out_skips_the_finished_cases_and_retries_the_fail
     assert calls == [0, 1, 2] and first[2]["failed"] and "no plan" in first[2]["error"]
     second = sweep.run_sweep(jobs, workers=0, out=tmp_path)
     assert calls == [0, 1, 2, 2] and second == first
+
+
+def test_the_any_distribution_draws_goals_all_over_the_region_each_labelled_with_the_face_it_needs():
+    settings = load_settings()
+    where = targets.region(settings)
+    goals, refused = targets.draw_goals(60, 0, settings, "any")
+    assert refused and all("beyond the" in reason for reason in refused)  # only the region's edge is redrawn
+    x0, y0 = where["object_start_m"]
+    for goal in goals:
+        x, y = goal.target_position_m
+        assert where["table_low_m"][0] <= x <= where["table_high_m"][0]
+        assert where["table_low_m"][1] <= y <= where["table_high_m"][1]
+        assert np.hypot(x, y) <= where["push_reach_m"]
+        assert goal.direction_rad == pytest.approx(np.arctan2(y - y0, x - x0))
+        assert goal.face == targets.face_needed(goal.direction_rad, 0.0)
+    assert {goal.face for goal in goals} == set(targets.FACES)
+    yaws = [goal.target_yaw_rad for goal in goals]
+    assert min(yaws) < -2.5 and max(yaws) > 2.5
+    assert {goal.face for goal in targets.draw_goals(60, 0, settings)[0]} == {"near"}  # forward: within 35 degrees
+    with pytest.raises(ValueError, match="unknown goal distribution 'everywhere'"):
+        targets.draw_goals(1, 0, settings, "everywhere")
+
+
+def test_a_refused_goal_is_reported_with_its_reason_and_time_apart_from_the_plans():
+    settings = load_settings().with_overrides({"solver.max_iter": 4})
+    goals, _ = targets.draw_goals(30, 0, settings, "any")
+    pull = next(goal for goal in goals if goal.face == "far")
+    refusal = targets.solve_goal(pull, "vscm", settings)
+    assert "behind the object's pushed face" in refusal["refused"] and not refusal["success"]
+    assert refusal["refusal_time_s"] > 0.0 and refusal["face"] == "far"
+    solved = targets.solve_goal(targets.draw_goals(1, 0, settings)[0][0], "vscm", settings)
+    assert "refused" not in solved and solved["face"] == "near"
+    summary = targets.report([refusal, solved], [], targets.region(settings))
+    vscm = summary["models"]["vscm"]
+    assert (vscm["goals"], vscm["refusals"]) == (2, 1) and vscm["refusal_time_s_max"] == refusal["refusal_time_s"]
+    assert vscm["success_rate"] == solved["success"] / 2
+    faces = summary["by_face"]["vscm"]
+    assert (faces["far"]["goals"], faces["far"]["refusals"], faces["far"]["successes"]) == (1, 1, 0)
+    assert faces["far"]["solve_time_s"]["median"] is None and faces["near"]["goals"] == 1
+    text = targets.markdown(summary)
+    assert "| VSCM | far | 0/1 | 1 (" in text and "1 goal(s) refused" in text

@@ -34,6 +34,7 @@ from pathlib import Path  # noqa: E402
 from cito_ros.cli.progress import advance, progress_bar  # noqa: E402
 from cito_ros.studies import asks, benchmarks, paper, sweep  # noqa: E402
 from cito_ros.studies.cases import load_cases  # noqa: E402
+from cito_ros.studies.targets import DISTRIBUTIONS  # noqa: E402
 
 
 def print_rollout(result: dict) -> None:
@@ -124,6 +125,11 @@ def main(argv: list[str] | None = None) -> int:
     add_sweep_options(paper_parser)
     targets = commands.add_parser("targets", help="seeded random pushes, judged by their execution")
     targets.add_argument("--n", type=positive_int, default=50, help="goals")
+    targets.add_argument("--distribution", choices=DISTRIBUTIONS, default="forward",
+                         help="forward: pushes within 35 degrees of +x (the default); any: anywhere on the table the "
+                              "arm can push the cube to, any yaw")
+    targets.add_argument("--time-limit", type=float, default=None, metavar="S",
+                         help="each solve's wall-clock limit (solver.time_limit_s; default: the settings')")
     targets.add_argument("--seed", type=int, default=0)
     targets.add_argument("--models", nargs="+", default=list(asks.MODELS), choices=asks.MODELS)
     targets.add_argument("--perturb", type=int, default=0, metavar="K",
@@ -240,11 +246,13 @@ def main(argv: list[str] | None = None) -> int:
         settings = load_settings()
         if args.reference_offsets is not None:
             settings = settings.with_overrides({"tracking.reference_offsets": args.reference_offsets})
-        goals, refused = targets_module.draw_goals(args.n, args.seed, settings)
+        if args.time_limit is not None:
+            settings = settings.with_overrides({"solver.time_limit_s": args.time_limit})
+        goals, refused = targets_module.draw_goals(args.n, args.seed, settings, args.distribution)
         jobs = targets_module.jobs(goals, args.models, sweep.settings_for(settings, args.workers), args.perturb)
-        records = sweep.run_sweep(jobs, workers=args.workers, address=args.address, out=args.out / f"seed{args.seed}",
-                                  label="targets")
-        summary = targets_module.report(records, refused, targets_module.push_reach_m(settings))
+        records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
+                                  out=args.out / f"{args.distribution}-seed{args.seed}", label="targets")
+        summary = targets_module.report(records, refused, targets_module.region(settings))
         paths = targets_module.write_outputs(records, summary, args.out)
         if args.json:
             print(json.dumps({"summary": summary, "runs": records}))

@@ -260,7 +260,10 @@ class Executor:
             if self.phase is not expected:
                 return None
             if isinstance(outcome, Failure):
-                self._end(outcome.ending, outcome.message, None if self._joints is None else self._joints.q)
+                ending = outcome.ending
+                if ending is Ending.INVALID_REQUEST and self.pushes:  # the goal was posed; no next push reaches it
+                    ending = Ending.TASK_NOT_ACHIEVED
+                self._end(ending, outcome.message, None if self._joints is None else self._joints.q)
                 return None
             if outcome is None:
                 return None

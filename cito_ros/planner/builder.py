@@ -71,6 +71,7 @@ def build_problem(settings: Settings, request: PushRequest) -> PlanningProblem:
     check_object_start(scene, start_q)
     initial_state = scene.initial_state(start_q)
     task = make_task(scene, initial_state, request.target_position_m, request.target_yaw_rad, settings)
+    check_pushable(scene, initial_state, task, settings)
     problem = PushProblem(simulator, initial_state, task, StageCost.paper(getattr(settings.weights, model.name)),
                           settings.gradient, settings.task.position_error_scale_min_m)
     return PlanningProblem(scene, simulator, initial_state, task, problem, beta,
@@ -92,6 +93,18 @@ def scene_config(settings: Settings, request: PushRequest) -> SceneConfig:
                          f"(+-{settings.task.target_height_tolerance_m} m): it must rest on the table")
     return dataclasses.replace(config, object=dataclasses.replace(
         config.object, position_m=(float(position[0]), float(position[1])), yaw_rad=float(yaw)))
+
+
+def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, settings: Settings) -> None:
+    """A goal behind the face the plate pushes on (the object candidate's), by more than the success tolerance, is
+    refused at once rather than searched for to the time limit: the plate's force on that face points into the
+    object within the friction cone, so pushing moves the object away from the face's plane, never back."""
+    qpos = scene.object_qpos(initial_state)
+    normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
+    behind_m = -float(np.dot(task.target_position_m[:2] - qpos[:2], normal / np.linalg.norm(normal)))
+    if behind_m > settings.task.success_position_error_m:
+        raise ValueError(f"target is {100 * behind_m:.1f} cm behind the object's pushed face (back towards the arm): "
+                         f"a push on that face, the only one this planner pushes on, moves the object away from it")
 
 
 def check_object_start(scene: Scene, start_q: np.ndarray) -> None:

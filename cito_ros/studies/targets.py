@@ -1,16 +1,25 @@
 """`cito-bench targets`: seeded random pushes, solved by each contact model, judged by execution.
 
-ROS-free. Goals are drawn from a seeded generator: the start pose q0(beta) for beta uniform in
-[4, 7] (initial distances 0.11-0.45 m), a push of 5-35 cm in a direction within +-35 degrees of
-+x from the cube's start, a goal yaw within +-0.5 rad. A draw the planner would refuse (off the
-table, beyond the arm's reach) is drawn again and counted. Every plan is judged by its execution
-without the virtual force, and also executed by a PD joint trajectory controller (cito_ros.planner.tracking).
+ROS-free. Goals are drawn from a seeded generator, in one of two distributions (DISTRIBUTIONS), both
+from the start pose q0(beta) for beta uniform in [4, 7] (initial distances 0.11-0.45 m):
+
+- forward: a push of 5-35 cm in a direction within +-35 degrees of +x from the cube's start, a goal
+  yaw within +-0.5 rad;
+- any: a goal anywhere on the table that the arm can push the cube to (the table top, the cube
+  inside it, within the push reach of the arm base: the region the planner's checks accept, drawn
+  in the report), a goal yaw in [-pi, pi).
+
+A draw the planner would refuse (off the table, beyond the arm's reach) is drawn again and counted.
+Every goal is labelled with the face of the cube a push towards it needs (`face_needed`). Every plan
+is judged by its execution without the virtual force, and also executed by a PD joint trajectory
+controller (cito_ros.planner.tracking).
 """
 from __future__ import annotations
 
 import csv
 import math
 import statistics
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -30,6 +39,8 @@ BETA_RANGE = (4.0, 7.0)
 PUSH_RANGE_M = (0.05, 0.35)
 DIRECTION_RANGE_RAD = math.radians(35.0)
 YAW_RANGE_RAD = 0.5
+DISTRIBUTIONS = ("forward", "any")
+FACES = ("near", "side", "far")
 
 
 @dataclass(frozen=True)
@@ -40,32 +51,59 @@ class Goal:
     target_yaw_rad: float
     push_m: float
     direction_rad: float
+    face: str = "near"      # the face a push towards the goal needs (face_needed)
 
 
-def push_reach_m(settings: Settings) -> float:
-    """The scene's push reach (Scene.push_reach_m): the farthest a goal may be from the arm base."""
-    return Scene(contact_model("vscm", settings.contact_models), settings.scene).push_reach_m()
+def face_needed(direction_rad: float, object_yaw_rad: float) -> str:
+    """The cube's face a push in direction_rad (world) needs, the cube at object_yaw_rad: the near face (its
+    inward normal along the cube's +x, away from the arm) for directions within 45 degrees of that normal,
+    a side face for those within 45 degrees of the normal turned by 90 degrees either way, else the far
+    face (a pull back towards the arm)."""
+    off = abs(math.remainder(direction_rad - object_yaw_rad, 2 * math.pi))
+    return FACES[0] if off <= math.pi / 4 else FACES[1] if off <= 3 * math.pi / 4 else FACES[2]
 
 
-def draw_goals(n: int, seed: int, settings: Settings | None = None) -> tuple[list[Goal], list[str]]:
-    """n plannable goals from the seed, and the reasons of the draws refused on the way."""
+def region(settings: Settings) -> dict[str, Any]:
+    """Where goals can be (the `any` distribution's region, drawn in the report): the table top the cube's centre
+    stays on, the scene's push reach (Scene.push_reach_m: the farthest a goal may be from the arm base), and the
+    cube's start."""
+    scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
+    low, high, _ = scene.table_top()
+    half = float(scene.object_half_size[0])
+    return {"table_low_m": (low + half).tolist(), "table_high_m": (high - half).tolist(),
+            "push_reach_m": scene.push_reach_m(), "object_start_m": list(settings.scene.object.position_m)}
+
+
+def draw_goals(n: int, seed: int, settings: Settings | None = None, distribution: str = "forward"
+               ) -> tuple[list[Goal], list[str]]:
+    """n plannable goals from the seed in a distribution (DISTRIBUTIONS), and the reasons of the draws refused
+    on the way."""
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"unknown goal distribution {distribution!r}: one of {', '.join(DISTRIBUTIONS)}")
     settings = load_settings() if settings is None else settings
     scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
-    x0, y0 = settings.scene.object.position_m
+    (x0, y0), yaw0 = settings.scene.object.position_m, settings.scene.object.yaw_rad
+    low, high, _ = scene.table_top()
+    half = float(scene.object_half_size[0])
     rng = np.random.default_rng(seed)
     goals, refused = [], []
     while len(goals) < n:
         beta = float(rng.uniform(*BETA_RANGE))
-        push = float(rng.uniform(*PUSH_RANGE_M))
-        direction = float(rng.uniform(-DIRECTION_RANGE_RAD, DIRECTION_RANGE_RAD))
-        yaw = float(rng.uniform(-YAW_RANGE_RAD, YAW_RANGE_RAD))
-        target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
+        if distribution == "forward":
+            push = float(rng.uniform(*PUSH_RANGE_M))
+            direction = float(rng.uniform(-DIRECTION_RANGE_RAD, DIRECTION_RANGE_RAD))
+            yaw = float(rng.uniform(-YAW_RANGE_RAD, YAW_RANGE_RAD))
+            target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
+        else:  # the whole table top the cube fits on; make_task refuses what is beyond the arm's push reach
+            target = tuple(float(v) for v in rng.uniform(low + half, high - half))
+            yaw = float(rng.uniform(-math.pi, math.pi))
+            push, direction = math.hypot(target[0] - x0, target[1] - y0), math.atan2(target[1] - y0, target[0] - x0)
         try:
             make_task(scene, scene.initial_state(start_configuration(beta)), np.array(target), yaw, settings)
         except ValueError as error:
             refused.append(str(error))
             continue
-        goals.append(Goal(len(goals), beta, target, yaw, push, direction))
+        goals.append(Goal(len(goals), beta, target, yaw, push, direction, face_needed(direction, yaw0)))
     return goals, refused
 
 
@@ -120,13 +158,20 @@ def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "
     """One goal with one model: the plan's summary with the goal's description, under a perturbation
     (plan_perturbed); unperturbed, also its tracked errors under reference offsets (offset_tracked_errors_m)."""
     request = perturbed_request(model, goal.beta, goal.target_position_m, goal.target_yaw_rad, perturbation)
-    result = _plan(request, settings)
+    described = {"goal": goal.index, "push_m": goal.push_m, "direction_rad": goal.direction_rad, "face": goal.face,
+                 "perturbation": perturbation}
+    began = time.perf_counter()
+    try:
+        result = _plan(request, settings)
+    except ValueError as error:  # refused: how fast, and why
+        return {**described, "contact_model": model, "refused": str(error), "success": False,
+                "refusal_time_s": time.perf_counter() - began, "target_position_m": list(goal.target_position_m),
+                "target_yaw_rad": goal.target_yaw_rad}
     summary = {key: value for key, value in result.summary().items() if key not in ("stages", "derivatives")}
     summary["beta"] = goal.beta
     if perturbation == "none":
         summary["offset_tracked_position_errors_m"] = offset_tracked_errors_m(result, request, settings, goal.index)
-    return {"goal": goal.index, "push_m": goal.push_m, "direction_rad": goal.direction_rad,
-            "perturbation": perturbation, **summary}
+    return {**described, **summary}
 
 
 def jobs(goals: Iterable[Goal], models: Iterable[str], settings: Settings, perturbed: int = 0) -> list:
@@ -138,6 +183,10 @@ def jobs(goals: Iterable[Goal], models: Iterable[str], settings: Settings, pertu
              if name != "none"]
     return [(f"goal{goal.index:03d}-{model}-{name}", solve_goal, (goal, model, settings, name))
             for goal, model, name in runs]
+
+
+def _median(values: list[float]) -> float | None:
+    return statistics.median(values) if values else None
 
 
 def _percentile(values: list[float], q: float) -> float | None:
@@ -207,12 +256,38 @@ def by_zone(records: list[dict[str, Any]]) -> dict[str, Any]:
     return {"steady_reach_m": reaches, "models": out}
 
 
-def report(records: list[dict[str, Any]], refused: list[str], reach_m: float | None = None) -> dict[str, Any]:
+def by_face(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per model and face the goal needs (face_needed): successes, executed errors and solve times."""
+    plain = [r for r in records if r["perturbation"] == "none"]
+    out: dict[str, Any] = {}
+    for model in dict.fromkeys(r["contact_model"] for r in plain):
+        for face in FACES:
+            chosen = [r for r in plain if r["contact_model"] == model and r.get("face", FACES[0]) == face]
+            if not chosen:
+                continue
+            rows, refused = [r for r in chosen if not r.get("refused")], [r for r in chosen if r.get("refused")]
+            times = [r["solve_time_s"] for r in rows]
+            positions, orientations = [r["position_error_m"] for r in rows], [r["orientation_error_rad"] for r in rows]
+            out.setdefault(model, {})[face] = {
+                "goals": len(chosen), "successes": sum(r["success"] for r in rows), "refusals": len(refused),
+                "refusal_time_s_max": max((r["refusal_time_s"] for r in refused), default=None),
+                "executed_position_error_m": {"median": _median(positions), "p90": _percentile(positions, 90)},
+                "executed_orientation_error_rad": {"median": _median(orientations),
+                                                   "p90": _percentile(orientations, 90)},
+                "solve_time_s": {"median": _median(times), "p90": _percentile(times, 90)}}
+    return out
+
+
+def report(records: list[dict[str, Any]], refused: list[str], where: dict[str, Any] | None = None) -> dict[str, Any]:
     """Per model: success rates, error and time statistics of the unperturbed plans, and the stability
-    of the perturbed ones; the same split by reach zone (by_zone); reach_m, the push reach, is drawn in the
-    plot. A failed solve (an exception, a lost worker) counts as no success."""
+    of the perturbed ones; the same split by reach zone (by_zone) and by the face the goal needs (by_face);
+    `where`, the goals' region (region), is drawn in the plot. A failed solve (an exception, a lost worker)
+    counts as no success; a refused goal (the planner's check, its time and reason kept) counts as a goal without
+    one, apart from the statistics of the plans."""
     failed = [r for r in records if r.get("failed")]
-    records = [r for r in records if not r.get("failed")]
+    refusals = [r for r in records if r.get("refused") and r["perturbation"] == "none"]
+    everything = [r for r in records if not r.get("failed")]
+    records = [r for r in everything if not r.get("refused")]
     per_model = {}
     plain = [r for r in records if r["perturbation"] == "none"]
     for model in dict.fromkeys(r["contact_model"] for r in plain):
@@ -223,10 +298,14 @@ def report(records: list[dict[str, Any]], refused: list[str], reach_m: float | N
         offset_ok = [offset_verdicts(r) for r in successes]
         times = [r["solve_time_s"] for r in rows]
         lost = [r for r in failed if f"-{model}-none" in r["key"]]
+        refused_here = [r for r in refusals if r["contact_model"] == model]
+        goals = len(rows) + len(lost) + len(refused_here)
         per_model[model] = {
-            "goals": len(rows) + len(lost),
+            "goals": goals,
             "failed_solves": len(lost),
-            "success_rate": len(successes) / (len(rows) + len(lost)),
+            "refusals": len(refused_here),
+            "refusal_time_s_max": max((r["refusal_time_s"] for r in refused_here), default=None),
+            "success_rate": len(successes) / goals,
             "planned_success_rate": sum(r["planned_success"] for r in rows) / len(rows),
             "max_joint_speed_ratio": max(r["max_joint_speed_ratio"] for r in rows),
             "executed_position_error_m": {"median": statistics.median(executed),
@@ -248,8 +327,10 @@ def report(records: list[dict[str, Any]], refused: list[str], reach_m: float | N
         }
     phases = phase_table({model.upper(): [r for r in plain if r["contact_model"] == model] for model in per_model})
     return {"models": per_model, "stability": stability(records), "phases": phases,
-            "by_zone": by_zone(records), "push_reach_m": reach_m, "refused_draws": len(refused),
-            "refused_reasons": sorted(set(refused))[:5], "failures": [(r["key"], r["error"]) for r in failed]}
+            "by_zone": by_zone(records), "by_face": by_face(everything), "region": where, "refused_draws": len(refused),
+            "refused_reasons": sorted(set(refused))[:5],
+            "refusal_examples": [r["refused"] for r in refusals][:3],
+            "failures": [(r["key"], r["error"]) for r in failed]}
 
 
 def markdown(summary: dict[str, Any]) -> str:
@@ -274,10 +355,14 @@ def markdown(summary: dict[str, Any]) -> str:
                      f"{t['median']:.2f} / {t['p90']:.2f} / {t['max']:.2f} | {it['median']:.0f} / {it['p90']:.0f} |")
     if summary["stability"]:
         lines += ["", stability_table(summary["stability"])]
-    lines += ["", zone_table(summary["by_zone"])]
+    lines += ["", zone_table(summary["by_zone"]), "", face_table(summary["by_face"])]
     lines += ["", "Where the solve time went (cito_ros.planner.results.PHASE_METRICS):", "", summary["phases"]]
     for key, error in summary["failures"]:
         lines.append(f"- {key}: failed: {error}")
+    for model, m in summary["models"].items():
+        if m["refusals"]:
+            lines.append(f"{model.upper()}: {m['refusals']} goal(s) refused, the slowest answer in "
+                         f"{m['refusal_time_s_max']:.3f} s (e.g. {summary['refusal_examples'][0]})")
     lines.append(f"Draws refused by the planner's checks and drawn again: {summary['refused_draws']}"
                  + (f" (e.g. {summary['refused_reasons'][0]})" if summary["refused_reasons"] else ""))
     return "\n".join(lines) + "\n"
@@ -313,6 +398,28 @@ def zone_table(split: dict[str, Any]) -> str:
     return "\n".join(lines).rstrip()
 
 
+def face_table(split: dict[str, Any]) -> str:
+    """Markdown of `by_face`."""
+    def pair(entry, scale: float, digits: int) -> str:
+        if entry["median"] is None:
+            return "-"
+        return f"{scale * entry['median']:.{digits}f} / {scale * entry['p90']:.{digits}f}"
+
+    lines = ["By the face of the cube a push towards the goal needs (near: within 45 degrees of straight away from "
+             "the arm; far: a pull back):", "", "| model | face | success | refused (slowest, s) | executed error "
+             "median / p90 (cm) | orientation error median / p90 (rad) | solve median / p90 (s) |",
+             "|---|---|---|---|---|---|---|"]
+    for model, faces in split.items():
+        for face, entry in faces.items():
+            slowest = entry["refusal_time_s_max"]
+            lines.append(f"| {model.upper()} | {face} | {entry['successes']}/{entry['goals']} | {entry['refusals']}"
+                         + ("" if slowest is None else f" ({slowest:.3f})") + " | "
+                         f"{pair(entry['executed_position_error_m'], 100, 2)} | "
+                         f"{pair(entry['executed_orientation_error_rad'], 1, 3)} | "
+                         f"{pair(entry['solve_time_s'], 1, 2)} |")
+    return "\n".join(lines)
+
+
 def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: Path) -> list[Path]:
     import json
 
@@ -325,24 +432,28 @@ def write_outputs(records: list[dict[str, Any]], summary: dict[str, Any], out: P
         writer.writerows(records)
     paths[1].write_text(markdown(summary))
     paths[2].write_text(json.dumps({"summary": summary, "runs": records}, indent=1))
-    plot(records, paths[3], summary.get("push_reach_m"))
+    plot(records, paths[3], summary.get("region"))
     return paths
 
 
-def plot(records: list[dict[str, Any]], path: Path, push_reach_m: float | None = None) -> Path:
+def plot(records: list[dict[str, Any]], path: Path, where: dict[str, Any] | None = None) -> Path:
     """Executed error against solve time per model, successes filled, success rate in the legend, the
-    successes that an offset of the tracked reference takes beyond 2 cm crossed; and against the goal's
-    distance from the arm base, the steady push reach and the push reach marked."""
+    successes that an offset of the tracked reference takes beyond 2 cm crossed; against the goal's
+    distance from the arm base, the steady push reach and the push reach marked; and, with the goals' region
+    (`where`), a map of the table: the region, the cube's start, each goal (filled: a success)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     colors = {"cccm": "tab:red", "scm": "tab:orange", "vscm": "tab:blue"}
-    records = [r for r in records if not r.get("failed") and r["perturbation"] == "none"]
+    refusals = [r for r in records if r.get("refused") and r["perturbation"] == "none"]
+    records = [r for r in records if not r.get("failed") and not r.get("refused") and r["perturbation"] == "none"]
     panels = [("solve time (s)", lambda r: r["solve_time_s"], "log"),
               ("goal's distance from the arm base (m)", goal_distance_m, "linear")]
-    figure, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 5), squeeze=False)
+    push_reach_m = None if where is None else where["push_reach_m"]
+    figure, axes = plt.subplots(1, len(panels) + (where is not None), figsize=(7.5 * (len(panels) + 1), 5),
+                                squeeze=False)
     for axis, (label, x_of, xscale) in zip(axes[0], panels):
         for model in dict.fromkeys(r["contact_model"] for r in records):
             rows = [r for r in records if r["contact_model"] == model]
@@ -371,7 +482,48 @@ def plot(records: list[dict[str, Any]], path: Path, push_reach_m: float | None =
         axes[0][1].axvline(steady, color="black", linewidth=1.0)
         axes[0][1].set_title(f"against the goal's distance: beyond the steady push reach ({steady:.3f} m, shaded"
                              + (f" to the push reach {push_reach_m:.3f} m" if push_reach_m else "") + "): strikes")
+    if where is not None:
+        map_of_goals(axes[0][len(panels)], records, refusals, where, colors)
+    for axis in axes[0]:
+        axis.title.set_fontsize(9)
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return path
+
+
+def map_of_goals(axis, records: list[dict[str, Any]], refusals: list[dict[str, Any]], where: dict[str, Any],
+                 colors: dict[str, str]) -> None:
+    """The table seen from above: the region goals are drawn from (the table top within the push reach), the
+    cube's start, and every goal, filled where its plan succeeded, its marker the face it needs; the refused
+    goals crossed."""
+    import matplotlib.patches as patches
+
+    (x_low, y_low), (x_high, y_high) = where["table_low_m"], where["table_high_m"]
+    axis.add_patch(patches.Rectangle((x_low, y_low), x_high - x_low, y_high - y_low, fill=False, color="gray"))
+    axis.add_patch(patches.Circle((0.0, 0.0), where["push_reach_m"], fill=False, color="black", linestyle="--",
+                                  label=f"push reach {where['push_reach_m']:.3f} m"))
+    axis.scatter([0.0], [0.0], color="black", marker="s", s=40, label="arm base")
+    axis.scatter(*where["object_start_m"], color="gray", marker="s", s=80, alpha=0.5, label="cube start")
+    markers = {"near": "o", "side": "^", "far": "v"}
+    for model in dict.fromkeys(r["contact_model"] for r in records):
+        for face, marker in markers.items():
+            for success in (True, False):
+                rows = [r for r in records if r["contact_model"] == model and r.get("face", "near") == face
+                        and r["success"] == success]
+                if rows:
+                    color = colors.get(model, "gray")
+                    axis.scatter([r["target_position_m"][0] for r in rows], [r["target_position_m"][1] for r in rows],
+                                 color=color, facecolors=color if success else "none", marker=marker, s=30,
+                                 label=f"{model.upper()}, {face} face, {'success' if success else 'miss'}")
+    if refusals:
+        axis.scatter([r["target_position_m"][0] for r in refusals], [r["target_position_m"][1] for r in refusals],
+                     color="gray", marker="x", s=30, label="refused")
+    axis.set_xlim(min(x_low, -0.05) - 0.05, x_high + 0.05)
+    axis.set_ylim(y_low - 0.05, y_high + 0.05)
+    axis.set_aspect("equal")
+    axis.set_xlabel("goal x (m, arm base frame)")
+    axis.set_ylabel("goal y (m)")
+    axis.set_title("goals on the table (the region: the table top within the push reach)")
+    axis.legend(fontsize=7, loc="lower left")
+    axis.grid(True, alpha=0.3)
