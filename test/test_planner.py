@@ -21,7 +21,8 @@ from cito_ros.planner.solvers.ilqr import IlqrSolver
 from cito_ros.planner.solvers.ipopt import IpoptSolver
 from cito_ros.planner.stages import physical_twin
 from cito_ros.studies import paper, targets
-from cito_ros.studies.targets import PERTURBATIONS, draw_goals, stability
+from cito_ros.studies.targets import PERTURBATIONS, draw_goals
+from cito_ros.studies.targets_report import stability
 
 SHORT_PUSH_M = [1.09, 0.0]  # the cube pushed 10 cm along +x from the paper's closest start (beta = 7)
 
@@ -39,6 +40,13 @@ def discovered(settings):
     without_script = settings.with_overrides({"stages.scripted.enabled": False})
     return {name: plan_push(name, 7, target_position_m=SHORT_PUSH_M, settings=without_script)
             for name in ("cccm", "scm", "vscm")}
+
+
+def test_a_cube_turned_by_half_a_turn_is_pushed_on_its_face_towards_the_arm_like_the_unturned_one(settings):
+    """The same cube, the same push: planned, and a success, with the candidate on the face the arm reaches."""
+    result = plan_push("vscm", 7, target_position_m=SHORT_PUSH_M, target_yaw_rad=math.pi,
+                       object_pose=((0.99, 0.0), math.pi), settings=settings)
+    assert result.metrics.success, result.summary()
 
 
 @pytest.mark.parametrize("name", ["cccm", "scm", "vscm"])

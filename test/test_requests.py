@@ -1,4 +1,6 @@
 """Requests the planner refuses, with the reason, and the reach it checks goals against. Real MuJoCo."""
+import math
+
 import mujoco
 import numpy as np
 import pytest
@@ -71,10 +73,10 @@ class TestReach:
         with pytest.raises(ValueError, match=r"target is 10.0 cm behind the object's pushed face"):
             plan_push("vscm", 7, settings=settings, target_position_m=[0.89, 0.0])
 
-    def test_the_pushed_face_is_the_cube_s_own_wherever_it_is_turned(self, settings):
+    def test_the_pushed_face_is_the_face_towards_the_arm_wherever_the_cube_is_turned(self, settings):
         """A goal straight beside the cube is a side push for a cube square to the arm, and a goal 5.6 cm behind
         the pushed face of one turned by 0.6 rad; a goal within the position tolerance behind it (a turn in
-        place) is posed."""
+        place) is posed. A cube turned by half a turn is the same cube: pushed away from the arm, not refused."""
         sideways = PushRequest("vscm", 7, None, [0.99, -0.10], 0.0, None, ((0.99, 0.0), 0.0))
         assert build_problem(settings, sideways).task is not None
         turned = PushRequest("vscm", 7, None, [0.99, -0.10], 0.0, None, ((0.99, 0.0), 0.6))
@@ -82,3 +84,10 @@ class TestReach:
             build_problem(settings, turned)
         in_place = PushRequest("vscm", 7, None, [0.975, 0.0], 0.5, None, ((0.99, 0.0), 0.0))
         assert build_problem(settings, in_place).task is not None
+        for target, refused in (([1.09, 0.0], False), ([0.89, 0.0], True)):
+            half_turned = PushRequest("vscm", 7, None, target, math.pi, None, ((0.99, 0.0), math.pi))
+            if refused:
+                with pytest.raises(ValueError, match=r"target is 10.0 cm behind the object's pushed face"):
+                    build_problem(settings, half_turned)
+            else:
+                assert build_problem(settings, half_turned).task is not None

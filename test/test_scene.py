@@ -1,4 +1,5 @@
 """The push scene: start poses, initial distances, model contents, config errors."""
+import dataclasses
 import math
 
 import mujoco
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 
 from cito_ros.model.contact_models import contact_model
-from cito_ros.model.scene import Scene, start_configuration
+from cito_ros.model.scene import Scene, pushed_face, start_configuration
 from cito_ros.settings import SceneConfig, load_settings
 
 PAPER_DISTANCES = {5: 0.30, 6: 0.17, 7: 0.11}
@@ -104,3 +105,21 @@ def test_all_collisions_scene_puts_every_geom_in_the_broad_phase():
     model = scene.model
     assert model.npair == 0 and np.all(model.geom_contype == 1) and np.all(model.geom_conaffinity == 1)
     assert model.geom_priority[scene.object_geom_id] == 1
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.6, 1.0, math.pi / 2, math.pi, -2.0])
+def test_the_contact_candidate_is_on_the_face_towards_the_arm_however_the_cube_is_turned(yaw):
+    """A cube turned by a quarter turn is the same cube: the candidate sits on the face the arm reaches, its
+    inward normal the one of the cube's four within 45 degrees of straight away from the arm base."""
+    settings = load_settings()
+    config = settings.scene
+    config = dataclasses.replace(config, object=dataclasses.replace(config.object, position_m=(0.9, 0.3), yaw_rad=yaw))
+    scene = Scene(contact_model("vscm", settings.contact_models), config)
+    data = scene.data_at(start_configuration(7))
+    away = np.array([0.9, 0.3]) / np.hypot(0.9, 0.3)
+    normal = scene.inward_normal(data)
+    assert normal[:2] @ away >= math.cos(math.pi / 4) - 1e-9 and abs(normal[2]) < 1e-9
+    centre = data.xpos[scene.object_body_id]
+    np.testing.assert_allclose(data.site_xpos[scene.object_site_id], centre - 0.075 * normal, atol=1e-9)
+    quarter_turns = round(math.remainder(math.atan2(normal[1], normal[0]) - yaw, 2 * math.pi) / (math.pi / 2)) % 4
+    assert pushed_face((0.9, 0.3), yaw) == quarter_turns

@@ -13,7 +13,7 @@ import pytest
 
 from cito_ros.planner.results import PHASE_METRICS
 from cito_ros.settings import load_settings
-from cito_ros.studies import sweep, targets
+from cito_ros.studies import sweep, targets, targets_report
 
 TIMINGS = ("solve_time_s", *PHASE_METRICS)
 
@@ -36,13 +36,13 @@ def test_a_sweep_gives_the_same_records_on_ray_and_in_process():
     assert not any(r.get("failed") for r in on_ray + in_process)
     # the threaded in-process solve and the single-threaded Ray task plan the same bits
     assert [without_timings(r) for r in on_ray] == [without_timings(r) for r in in_process]
-    report = targets.report(on_ray, [], targets.region(settings))
+    report = targets_report.report(on_ray, [], targets.region(settings))
     assert set(report["models"]) == {"scm", "vscm"} and report["models"]["scm"]["goals"] == 4
     for model, split in report["by_zone"]["models"].items():
         assert split["steady"]["goals"] + split["strike"]["goals"] == 4
         assert split["steady"]["successes"] + split["strike"]["successes"] == \
             sum(r["success"] for r in on_ray if r["contact_model"] == model)
-    assert "Goals inside the steady push reach" in targets.markdown(report)
+    assert "Goals inside the steady push reach" in targets_report.markdown(report)
     # every plan also tracked with its reference off; the report counts the successes' executions
     assert all(len(r["offset_tracked_position_errors_m"]) == targets.OFFSETS for r in on_ray)
     for model, summary in report["models"].items():
@@ -61,7 +61,7 @@ def test_the_report_sets_apart_the_goals_beyond_the_steady_push_reach():
     # a goal beyond the steady reach whose perturbed twin flips, one inside whose twin moves 5 mm
     records = [record(0, "none", True, 0.015, -0.01), record(0, "target x +1e-9 m", False, 0.03, -0.01),
                record(1, "none", True, 0.002, 0.05), record(1, "target x +1e-9 m", True, 0.007, 0.05)]
-    split = targets.by_zone(records)
+    split = targets_report.by_zone(records)
     assert split["steady_reach_m"] == [1.1]
     scm = split["models"]["scm"]
     assert (scm["strike"]["goals"], scm["strike"]["successes"], scm["strike"]["pairs_stable"]) == (1, 1, 0)
@@ -121,7 +121,7 @@ def test_a_killed_worker_is_reported_as_that_case_s_failure(tmp_path):
     assert failed[0]["key"] == jobs[0][0] and "WorkerCrashedError" in failed[0]["error"]
     assert finished[0]["key"] == jobs[1][0] and "position_error_m" in finished[0]
     assert [p.name for p in (tmp_path / "cases").iterdir()] == [f"{jobs[1][0]}.json"]  # a rerun retries the other
-    summary = targets.report(records, [])
+    summary = targets_report.report(records, [])
     assert summary["failures"] == [(failed[0]["key"], failed[0]["error"])]
     assert summary["models"]["vscm"]["goals"] == 2 and summary["models"]["vscm"]["failed_solves"] == 1
 
@@ -172,12 +172,12 @@ def test_a_refused_goal_is_reported_with_its_reason_and_time_apart_from_the_plan
     assert refusal["refusal_time_s"] > 0.0 and refusal["face"] == "far"
     solved = targets.solve_goal(targets.draw_goals(1, 0, settings)[0][0], "vscm", settings)
     assert "refused" not in solved and solved["face"] == "near"
-    summary = targets.report([refusal, solved], [], targets.region(settings))
+    summary = targets_report.report([refusal, solved], [], targets.region(settings))
     vscm = summary["models"]["vscm"]
     assert (vscm["goals"], vscm["refusals"]) == (2, 1) and vscm["refusal_time_s_max"] == refusal["refusal_time_s"]
     assert vscm["success_rate"] == solved["success"] / 2
     faces = summary["by_face"]["vscm"]
     assert (faces["far"]["goals"], faces["far"]["refusals"], faces["far"]["successes"]) == (1, 1, 0)
     assert faces["far"]["solve_time_s"]["median"] is None and faces["near"]["goals"] == 1
-    text = targets.markdown(summary)
+    text = targets_report.markdown(summary)
     assert "| VSCM | far | 0/1 | 1 (" in text and "1 goal(s) refused" in text

@@ -241,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
             print("written: " + ", ".join(str(p) for p in paths))
     elif args.command == "targets":
         from cito_ros.settings import load_settings
-        from cito_ros.studies import targets as targets_module
+        from cito_ros.studies import targets as targets_module, targets_report
 
         settings = load_settings()
         if args.reference_offsets is not None:
@@ -252,12 +252,12 @@ def main(argv: list[str] | None = None) -> int:
         jobs = targets_module.jobs(goals, args.models, sweep.settings_for(settings, args.workers), args.perturb)
         records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
                                   out=args.out / f"{args.distribution}-seed{args.seed}", label="targets")
-        summary = targets_module.report(records, refused, targets_module.region(settings))
-        paths = targets_module.write_outputs(records, summary, args.out)
+        summary = targets_report.report(records, refused, targets_module.region(settings))
+        paths = targets_report.write_outputs(records, summary, args.out)
         if args.json:
             print(json.dumps({"summary": summary, "runs": records}))
         else:
-            print(targets_module.markdown(summary))
+            print(targets_report.markdown(summary))
             print("written: " + ", ".join(str(p) for p in paths))
     elif args.command == "speed-vs-error":
         variants = [v for v in asks.VARIANTS if v.name in ("default", "max_iter 10")] if args.quick \

@@ -39,6 +39,14 @@ VELOCITY_LIMIT = "velocity_limit"  # <numeric> of the arm's joint velocity limit
 SETTLE_TIME_S = 0.3  # time for the object to settle into its table contact (several contact time constants)
 
 
+def pushed_face(position_m, yaw_rad: float) -> int:
+    """The vertical face of a cube at (x, y) with yaw_rad towards the arm base (the origin): k, the face whose inward
+    normal is the cube's +x turned by k quarter turns (0: its -x face, the model file's candidate). A push away from
+    the arm lands on it; a cube turned by a quarter turn is the same cube, so the candidate goes there."""
+    away_rad = math.atan2(position_m[1], position_m[0])
+    return round(math.remainder(away_rad - yaw_rad, 2 * math.pi) / (math.pi / 2)) % 4
+
+
 def start_configuration(beta: float) -> np.ndarray:
     """The paper's start pose q0(beta) = [-pi/12, -pi/b, 0, 3pi/b, -pi/6, -2pi/b, 0] (rad)."""
     beta = require_finite("beta", beta, positive=True)
@@ -113,7 +121,11 @@ class Scene:
         h = obj.half_size_m
         spec.geom(OBJECT_GEOM).size = [h, h, h]
         spec.geom(OBJECT_GEOM).mass = obj.mass_kg
-        spec.site(OBJECT_CANDIDATE).pos = [-h, 0.0, 0.0]
+        site, turn = spec.site(OBJECT_CANDIDATE), pushed_face(obj.position_m, obj.yaw_rad) * math.pi / 2
+        site.pos = [-h, 0.0, 0.0]
+        if turn:  # another face than the model file's (its -x): the candidate turned about the cube's z with it
+            site.pos = [-h * math.cos(turn), -h * math.sin(turn), 0.0]
+            site.quat = [math.cos((turn + math.pi) / 2), 0.0, 0.0, math.sin((turn + math.pi) / 2)]
         body = spec.body(OBJECT_BODY)
         body.pos = [obj.position_m[0], obj.position_m[1], TABLE_TOP_Z_M + h]
         body.quat = [math.cos(obj.yaw_rad / 2), 0.0, 0.0, math.sin(obj.yaw_rad / 2)]

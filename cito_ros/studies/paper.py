@@ -14,7 +14,8 @@ from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import phase_table
 from cito_ros.settings import Settings, load_settings
 from cito_ros.studies import sweep
-from cito_ros.studies.targets import PERTURBATIONS, plan_perturbed, stability, stability_table
+from cito_ros.studies.targets import PERTURBATIONS, plan_perturbed
+from cito_ros.studies.targets_report import stability, stability_table
 
 # The paper's Tables I-IV, by initial distance (beta 7, 6, 5) and contact model.
 PAPER = {
