@@ -2,6 +2,7 @@
 Real Ray (embedded, local), real solves."""
 from __future__ import annotations
 
+import math
 import os
 import signal
 import threading
@@ -154,7 +155,7 @@ def test_the_any_distribution_draws_goals_all_over_the_region_each_labelled_with
         assert where["table_low_m"][1] <= y <= where["table_high_m"][1]
         assert np.hypot(x, y) <= where["push_reach_m"]
         assert goal.direction_rad == pytest.approx(np.arctan2(y - y0, x - x0))
-        assert goal.face == targets.face_needed(goal.direction_rad, 0.0)
+        assert goal.face == targets.face_needed(goal.direction_rad, (x0, y0), 0.0)
     assert {goal.face for goal in goals} == set(targets.FACES)
     yaws = [goal.target_yaw_rad for goal in goals]
     assert min(yaws) < -2.5 and max(yaws) > 2.5
@@ -181,3 +182,11 @@ def test_a_refused_goal_is_reported_with_its_reason_and_time_apart_from_the_plan
     assert faces["far"]["solve_time_s"]["median"] is None and faces["near"]["goals"] == 1
     text = targets_report.markdown(summary)
     assert "| VSCM | far | 0/1 | 1 (" in text and "1 goal(s) refused" in text
+
+
+def test_the_face_a_goal_needs_is_judged_from_the_face_towards_the_arm_however_the_cube_is_turned():
+    for yaw in (0.0, math.pi / 2, math.pi, -2.0):
+        assert targets.face_needed(0.0, (0.99, 0.0), yaw) == "near"     # straight away from the arm
+        assert targets.face_needed(math.pi / 2, (0.99, 0.0), yaw) == "side"
+        assert targets.face_needed(math.pi, (0.99, 0.0), yaw) == "far"  # back towards it
+    assert targets.face_needed(math.pi / 2, (0.0, 0.99), 0.0) == "near"  # a cube straight beside the arm base

@@ -25,7 +25,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from cito_ros.model.contact_models import contact_model
-from cito_ros.model.scene import Scene, start_configuration
+from cito_ros.model.scene import Scene, pushed_face, start_configuration
 from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, build_problem, make_task
 from cito_ros.planner.plan import plan_push
@@ -52,12 +52,13 @@ class Goal:
     face: str = "near"      # the face a push towards the goal needs (face_needed)
 
 
-def face_needed(direction_rad: float, object_yaw_rad: float) -> str:
-    """The cube's face a push in direction_rad (world) needs, the cube at object_yaw_rad: the near face (its
-    inward normal along the cube's +x, away from the arm) for directions within 45 degrees of that normal,
-    a side face for those within 45 degrees of the normal turned by 90 degrees either way, else the far
-    face (a pull back towards the arm)."""
-    off = abs(math.remainder(direction_rad - object_yaw_rad, 2 * math.pi))
+def face_needed(direction_rad: float, object_position_m, object_yaw_rad: float) -> str:
+    """The cube's face a push in direction_rad (world) needs, the cube at object_position_m with object_yaw_rad:
+    the near face (the face towards the arm, scene.pushed_face, whose inward normal points away from it) for
+    directions within 45 degrees of that normal, a side face for those within 45 degrees of the normal turned by
+    90 degrees either way, else the far face (a pull back towards the arm)."""
+    normal_rad = object_yaw_rad + pushed_face(object_position_m, object_yaw_rad) * math.pi / 2
+    off = abs(math.remainder(direction_rad - normal_rad, 2 * math.pi))
     return FACES[0] if off <= math.pi / 4 else FACES[1] if off <= 3 * math.pi / 4 else FACES[2]
 
 
@@ -101,7 +102,7 @@ def draw_goals(n: int, seed: int, settings: Settings | None = None, distribution
         except ValueError as error:
             refused.append(str(error))
             continue
-        goals.append(Goal(len(goals), beta, target, yaw, push, direction, face_needed(direction, yaw0)))
+        goals.append(Goal(len(goals), beta, target, yaw, push, direction, face_needed(direction, (x0, y0), yaw0)))
     return goals, refused
 
 
