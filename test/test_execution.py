@@ -8,11 +8,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from cito_ros.execution.estimator import StateEstimator
+from cito_ros.execution.episode import Watch, at_goal
+from cito_ros.execution.estimator import StateEstimator, tipping_tilt_rad
 from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Phase, compute
 from cito_ros.execution.policy import Policy, bias_torques, state_difference
 from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld
 from cito_ros.model.scene import start_configuration
+from cito_ros.studies import closed_loop
 
 GOAL = ExecuteGoal((1.09, 0.03), 0.1, "vscm")  # 10 cm from q0(beta = 7), inside the steady push reach
 
@@ -311,3 +313,43 @@ def test_a_cube_pushed_past_the_goal_ends_the_execution_as_not_achieved_without_
     assert isinstance(outcome, Failure) and "behind the object's pushed face" in outcome.message
     assert executor.accept(overshot, outcome, 0.01) is None
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and "6.0 cm behind" in executor.message
+
+
+def test_a_cube_seen_tipped_past_its_edge_ends_the_execution_with_the_arm_held(settings):
+    """The camera sees the cube's top 60 degrees from upright (past 45, where a cube falls onto its side): the
+    execution ends as not achieved, the arm held where it is; a cube rocking by 20 degrees does not end it."""
+    executor, world = pushing(settings, 60)
+    position = world.true_object_pose()[0]
+    for degrees, ends in ((20.0, False), (60.0, True)):
+        half = math.radians(degrees) / 2
+        executor.on_pose(PoseReading(world.time_s, position, np.array([math.cos(half), math.sin(half), 0.0, 0.0])),
+                         world.time_s)
+        q = world.joints().q
+        executor.command(world.time_s)
+        assert (executor.phase is Phase.DONE) is ends, executor.message
+    assert executor.ending is Ending.TASK_NOT_ACHIEVED and "tipped over (its top 60 degrees" in executor.message
+    np.testing.assert_array_equal(executor._hold_q, q)
+
+
+def test_an_episode_with_a_cube_that_fell_onto_its_side_is_no_success(settings):
+    """Judged on the truth: a cube whose top turned 90 degrees (now on its side) is not at a flat goal, whatever its
+    position and yaw; one upright is judged by them."""
+    world = SimulatedWorld(settings, Mismatch(), start_configuration(7))
+    assert Watch(world).upright and tipping_tilt_rad(world.scene) == pytest.approx(math.pi / 4)
+    adr = world.scene.object_qpos_adr
+    world.data.qpos[adr + 3:adr + 7] = [math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0]  # rolled onto a side
+    watch = Watch(world)
+    assert watch.max_tilt_rad == pytest.approx(math.pi / 2) and not watch.upright
+    assert at_goal(settings.task, True, 0.001, 0.01) and not at_goal(settings.task, True, 0.001, 0.01, upright=False)
+
+
+def test_the_closed_loop_report_counts_the_cubes_that_tipped_over():
+    def record(mode: str, tipped: bool) -> dict:
+        return {"world": "w", "mode": mode, "steady_reach_margin_m": 0.05, "success": False, "success_tight": False,
+                "position_error_m": 0.05, "max_joint_speed_ratio": 0.9, "pushes": 1, "replans": 0,
+                "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped}
+
+    summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False), record("open_loop", False)])
+    assert summary["zones"]["steady"]["w"]["closed_loop"]["tipped"] == 1
+    assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop." in \
+        closed_loop.markdown(summary)

@@ -64,8 +64,8 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
     node = spawn("cito-executor-node", domain, f"node.bag_directory:={tmp_path}")
     operator = Operator(domain)
     try:
-        closed = closed_loop_episode(operator, domain, goal, world, "vscm", settings, 0.0, scenes["vscm"].velocity_limit)
-        verdict = {k: closed[k] for k in ("success", "position_error_m", "orientation_error_rad", "at_rest",
+        closed = closed_loop_episode(operator, domain, goal, world, "vscm", settings, 0.0, scenes["vscm"])
+        verdict = {k: closed[k] for k in ("success", "position_error_m", "orientation_error_rad", "at_rest", "tipped",
                                           "max_joint_speed_ratio", "ending", "message", "phases")}
         assert closed["success"], verdict
         assert closed["max_joint_speed_ratio"] <= 1.0, verdict

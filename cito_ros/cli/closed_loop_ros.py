@@ -14,8 +14,9 @@ from typing import Any, Callable
 import numpy as np
 
 from cito_ros.execution.episode import TIGHT_YAW_RAD, at_goal
+from cito_ros.execution.estimator import tipping_tilt_rad
 from cito_ros.execution.executor import ExecuteGoal
-from cito_ros.model.scene import start_configuration
+from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.ros.sim_session import Operator, robot_parameters, spawn, stop
 from cito_ros.settings import Settings
@@ -27,8 +28,7 @@ def ros_records(goals: list[Goal], model: str, settings: Settings, bag_directory
                 progress: Callable[[str], None] = lambda _: None) -> list[dict[str, Any]]:
     """Every goal in every world (closed_loop.WORLDS), open loop in process and closed loop through the nodes."""
     domain = random.randint(101, 180)
-    velocity_limit = build_problem(settings, PushRequest(model, start_q=start_configuration(settings.beta))
-                                   ).scene.velocity_limit
+    scene = build_problem(settings, PushRequest(model, start_q=start_configuration(settings.beta))).scene
     node = spawn("cito-executor-node", domain, f"node.bag_directory:={bag_directory.resolve()}", quiet=True)
     operator = Operator(domain)
     records = []
@@ -39,7 +39,7 @@ def ros_records(goals: list[Goal], model: str, settings: Settings, bag_directory
                 records.append(closed_loop.episode(goal, world, "open_loop", model, settings))
                 progress(f"goal{goal.index:03d}-{world.name}-open_loop")
                 records.append(closed_loop_episode(operator, domain, goal, world, model, settings, margin,
-                                                   velocity_limit))
+                                                   scene))
                 progress(f"goal{goal.index:03d}-{world.name}-closed_loop")
     finally:
         operator.close()
@@ -48,7 +48,7 @@ def ros_records(goals: list[Goal], model: str, settings: Settings, bag_directory
 
 
 def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, model: str, settings: Settings,
-                        margin_m: float, velocity_limit: np.ndarray) -> dict[str, Any]:
+                        margin_m: float, scene: Scene) -> dict[str, Any]:
     """One goal closed loop in one world: a cito-sim-robot with the world's differences beside the running executor
     node, the goal sent from this process, judged on the simulator's true cube at rest (the bench's record)."""
     mismatch = closed_loop.world_for(world, goal)
@@ -60,17 +60,19 @@ def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, mode
         outcome = operator.execute(target, settings.task.rest_speed_m_s)
     finally:
         stop(sim)
-    task, result = settings.task, outcome.result
+    task, result, upright = settings.task, outcome.result, outcome.max_tilt_rad < tipping_tilt_rad(scene)
     rate = result.replan_rate_hz or math.nan
     return {"goal": goal.index, "world": world.name, "mode": "closed_loop", "contact_model": model,
             "offset_m": list(mismatch.offset_m), "offset_yaw_rad": mismatch.offset_yaw_rad,
             "steady_reach_margin_m": margin_m,
-            "success": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad),
+            "success": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad,
+                               upright=upright),
             "success_tight": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad,
-                                     TIGHT_YAW_RAD),
+                                     TIGHT_YAW_RAD, upright),
             "position_error_m": outcome.position_error_m, "orientation_error_rad": outcome.orientation_error_rad,
             "at_rest": outcome.at_rest,
-            "max_joint_speed_ratio": float(np.max(outcome.max_joint_speed / velocity_limit)),
+            "max_joint_speed_ratio": float(np.max(outcome.max_joint_speed / scene.velocity_limit)),
+            "max_tilt_rad": outcome.max_tilt_rad, "tipped": not upright,
             "duration_s": outcome.round_trip_s, "ending": f"status {result.status}", "message": result.message,
             "pushes": math.nan, "replans": int(result.replans), "replan_rate_hz": rate,
             "replan_compute_s": 1.0 / rate, "plan_compute_s": math.nan, "phases": list(outcome.phases),

@@ -78,6 +78,7 @@ def _goal(args, settings) -> tuple[float, float, float]:
 def _execute(args) -> int:
     """The push closed loop through the nodes and open loop in process, in DEMO_WORLD, side by side."""
     from cito_ros.execution.episode import at_goal, run_open_loop
+    from cito_ros.execution.estimator import tipping_tilt_rad
     from cito_ros.execution.executor import ExecuteGoal
     from cito_ros.execution.world import Mismatch, SimulatedWorld
     from cito_ros.model.scene import start_configuration
@@ -91,8 +92,8 @@ def _execute(args) -> int:
     print(f"\nexecuting it where the cube is heavier (mass x{world.mass_scale:g}) and grippier (friction "
           f"x{world.friction_scale:g}) than the model, {1000 * world.offset_m[0]:.0f} mm / {1000 * world.offset_m[1]:.0f} "
           f"mm / {world.offset_yaw_rad:g} rad off, seen by a noisy camera {1000 * world.latency_s:.0f} ms late:")
-    opened = run_open_loop(settings, goal, SimulatedWorld(settings, world, start_configuration(settings.beta)),
-                           (tuple(told.position_m), told.yaw_rad))
+    open_world = SimulatedWorld(settings, world, start_configuration(settings.beta))
+    opened = run_open_loop(settings, goal, open_world, (tuple(told.position_m), told.yaw_rad))
     domain = int(os.environ["ROS_DOMAIN_ID"])
     sim = spawn("cito-sim-robot", domain, *robot_parameters(world, settings.beta, 0), quiet=True)
     node = spawn("cito-executor-node", domain, f"node.bag_directory:={args.bag_directory.resolve()}", quiet=True)
@@ -108,7 +109,8 @@ def _execute(args) -> int:
         stop(sim)
     result = closed.result
     # both on the world's truth (the executor's own verdict, from the camera, is in its message below)
-    arrived = at_goal(settings.task, closed.at_rest, closed.position_error_m, closed.orientation_error_rad)
+    arrived = at_goal(settings.task, closed.at_rest, closed.position_error_m, closed.orientation_error_rad,
+                      upright=closed.max_tilt_rad < tipping_tilt_rad(open_world.scene))
     print(f"  {'':24}{'open loop':>22}{'closed loop':>22}")
     print(f"  {'at the goal (2 cm, 0.15 rad)':<28}{'yes' if opened.success else 'no':>18}"
           f"{'yes' if arrived else 'no':>22}")

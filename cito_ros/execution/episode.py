@@ -8,7 +8,8 @@ plan is made from where the planner was told the cube is, and a joint trajectory
 efforts as feed-forward plus a PD on its positions and velocities, then holds the last point.
 
 Either way the arm is then held until the cube has come to rest (the world's truth, at most REST_WAIT_S), and
-the push is judged there: the cube within 2 cm and 0.15 rad (and 0.1 rad) of the goal.
+the push is judged there: the cube upright (never tipped past its edge on the way) and within 2 cm and 0.15 rad
+(and 0.1 rad) of the goal.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from cito_ros.execution.estimator import yaw_of
+from cito_ros.execution.estimator import tilt_of, tipping_tilt_rad, yaw_of
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
 from cito_ros.execution.policy import bias_torques, hold_torques
 from cito_ros.execution.world import SimulatedWorld
@@ -39,6 +40,7 @@ class Episode:
     orientation_error_rad: float
     at_rest: bool
     max_joint_speed_ratio: float     # the world's arm over the whole run
+    max_tilt_rad: float              # the world's cube over the whole run (past tipping_tilt_rad: it fell over)
     duration_s: float                # on the world's clock, to the end of the execution
     ending: str                      # the executor's (closed loop), "executed" (open loop), or why nothing ran
     message: str
@@ -54,7 +56,7 @@ class Episode:
 
 def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld) -> Episode:
     executor = Executor(settings, goal)
-    speeds = [0.0]
+    watch = Watch(world)
 
     def deliver() -> None:
         executor.on_joints(world.joints())
@@ -62,8 +64,7 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
             executor.on_pose(reading, world.time_s)
 
     def step(torques: np.ndarray) -> None:
-        world.step(torques)
-        speeds.append(world.joint_speed_ratio())
+        watch.step(torques)
         deliver()
 
     deliver()
@@ -80,7 +81,7 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
     position, orientation, at_rest = _settle(world, lambda: step(executor.command(world.time_s)), goal,
                                                settings.task.rest_speed_m_s)
     seconds = executor.replan_seconds
-    return _episode("closed_loop", settings, position, orientation, at_rest, max(speeds), duration_s,
+    return _episode("closed_loop", settings, position, orientation, at_rest, watch, duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
                     float(np.median(seconds)) if seconds else math.nan, plan_compute_s)
 
@@ -95,18 +96,14 @@ def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
                            target_yaw_rad=goal.target_yaw_rad, scene=goal.scene, object_pose=told_pose,
                            settings=settings)
     except ValueError as error:
-        return _episode("open_loop", settings, math.nan, math.nan, False, 0.0, 0.0, Ending.INVALID_REQUEST.value,
-                        str(error), 0, 0, math.nan, math.nan, math.nan)
+        return _episode("open_loop", settings, math.nan, math.nan, False, Watch(world), 0.0,
+                        Ending.INVALID_REQUEST.value, str(error), 0, 0, math.nan, math.nan, math.nan)
     plan_compute_s = time.perf_counter() - began
     trajectory, gains = result.trajectory, settings.tracking
     kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
     data = mujoco.MjData(world.scene.model)  # the controller's model of the arm: the same arm
-    speeds = [0.0]
-
-    def step(torques: np.ndarray) -> None:
-        world.step(torques)
-        speeds.append(world.joint_speed_ratio())
-
+    watch = Watch(world)
+    step = watch.step
     for index in range(len(trajectory.torque_Nm)):
         joints = world.joints()
         step(trajectory.torque_Nm[index] + kp * (trajectory.q[index] - joints.q)
@@ -118,21 +115,42 @@ def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
         step(hold_torques(world.scene, data, kp, kd, trajectory.q[-1], joints.q, joints.qdot))
 
     position, orientation, at_rest = _settle(world, hold, goal, settings.task.rest_speed_m_s)
-    return _episode("open_loop", settings, position, orientation, at_rest, max(speeds), duration_s, "executed",
+    return _episode("open_loop", settings, position, orientation, at_rest, watch, duration_s, "executed",
                     result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s)
 
 
-def at_goal(task, at_rest: bool, position_m: float, orientation_rad: float, yaw_tolerance_rad: float | None = None
-            ) -> bool:
-    """A push's verdict on the world's truth: at rest within the task's tolerances (or yaw_tolerance_rad)."""
+class Watch:
+    """Steps the world and keeps the largest joint speed ratio of its arm and tilt of its cube on the way."""
+
+    def __init__(self, world: SimulatedWorld):
+        self.world, self.max_joint_speed_ratio = world, 0.0
+        self.max_tilt_rad = tilt_of(world.true_object_pose()[1])
+
+    def step(self, torques: np.ndarray) -> None:
+        self.world.step(torques)
+        self.max_joint_speed_ratio = max(self.max_joint_speed_ratio, self.world.joint_speed_ratio())
+        self.max_tilt_rad = max(self.max_tilt_rad, tilt_of(self.world.true_object_pose()[1]))
+
+    @property
+    def upright(self) -> bool:
+        """Whether the cube never tipped past its edge (a cube that fell onto its side is not at any flat goal)."""
+        return self.max_tilt_rad < tipping_tilt_rad(self.world.scene)
+
+
+def at_goal(task, at_rest: bool, position_m: float, orientation_rad: float, yaw_tolerance_rad: float | None = None,
+            upright: bool = True) -> bool:
+    """A push's verdict on the world's truth: upright, at rest within the task's tolerances (or yaw_tolerance_rad)."""
     yaw_tolerance_rad = task.success_orientation_error_rad if yaw_tolerance_rad is None else yaw_tolerance_rad
-    return bool(at_rest and position_m < task.success_position_error_m and orientation_rad < yaw_tolerance_rad)
+    return bool(upright and at_rest and position_m < task.success_position_error_m and
+                orientation_rad < yaw_tolerance_rad)
 
 
-def _episode(mode: str, settings: Settings, position: float, orientation: float, at_rest: bool, *rest) -> Episode:
-    task = settings.task
-    return Episode(mode, at_goal(task, at_rest, position, orientation),
-                   at_goal(task, at_rest, position, orientation, TIGHT_YAW_RAD), position, orientation, at_rest, *rest)
+def _episode(mode: str, settings: Settings, position: float, orientation: float, at_rest: bool, watch: Watch,
+             *rest) -> Episode:
+    task, upright = settings.task, watch.upright
+    return Episode(mode, at_goal(task, at_rest, position, orientation, upright=upright),
+                   at_goal(task, at_rest, position, orientation, TIGHT_YAW_RAD, upright), position, orientation,
+                   at_rest, watch.max_joint_speed_ratio, watch.max_tilt_rad, *rest)
 
 
 def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal, rest_speed_m_s: float) -> tuple[float, float, bool]:

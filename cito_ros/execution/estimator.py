@@ -25,6 +25,19 @@ def yaw_of(quaternion: np.ndarray) -> float:
     return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+def tilt_of(quaternion: np.ndarray) -> float:
+    """The angle (rad) between the cube's top (its body z) and world z: 0 upright."""
+    w, x, y, z = np.asarray(quaternion, dtype=float) / np.linalg.norm(quaternion)
+    return math.acos(min(1.0, max(-1.0, 1 - 2 * (x * x + y * y))))
+
+
+def tipping_tilt_rad(scene: Scene) -> float:
+    """The tilt past which the cube's centre of mass is beyond the edge it stands on, so that it falls onto its
+    side: the box's diagonal angle, 45 degrees for a cube."""
+    half = scene.object_half_size
+    return math.atan2(float(half[0]), float(half[2]))
+
+
 class StateEstimator:
     """The state estimate (see the module docstring) in `scene`'s model; `resting_state` gives the cube's
     resting height and everything the measurements do not (the table, the time, the actuators)."""
@@ -38,8 +51,10 @@ class StateEstimator:
         # tell rest (a longer line averages the camera's noise down: at rest no faster than that noise allows)
         self._poses: deque[tuple[float, float, float, float]] = deque(maxlen=max(window, rest_window))
         self._window = window
+        self.tilt_rad = 0.0  # of the latest pose
 
     def add_pose(self, reading: PoseReading) -> None:
+        self.tilt_rad = tilt_of(reading.quaternion)
         yaw = yaw_of(reading.quaternion)
         if self._poses:  # unwrapped, so that the line through the yaws has no 2 pi jumps
             yaw = self._poses[-1][3] + math.remainder(yaw - self._poses[-1][3], 2 * math.pi)

@@ -14,8 +14,8 @@ done; else, while pushes and time are left, `retreating`: the arm goes back alon
 the execution started, and a new push is planned from there, made only if the model predicts it brings the
 cube closer (both errors against their tolerances)), `done`. An execution begun with the arm against the cube
 (where the last one ended or was cancelled) begins `retreating` to the start pose of settings.beta. Measurements
-older than executor.stale_after_s, a cancel, the time limit or a push that cannot be planned end the execution
-with the arm held where it is.
+older than executor.stale_after_s, a cancel, the time limit, a cube seen tipped past its edge or a push that
+cannot be planned end the execution with the arm held where it is.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cito_ros.execution.estimator import StateEstimator, yaw_of
+from cito_ros.execution.estimator import StateEstimator, tipping_tilt_rad, yaw_of
 from cito_ros.execution.mpc import PushModel, servo_gains
 from cito_ros.execution.policy import Policy, Retreat, bias_torques, within_speed_limits
 from cito_ros.execution.world import JointReading, PoseReading
@@ -164,6 +164,10 @@ class Executor:
             what = "joint states" if now_s - self._joints_arrival_s > stale else "cube poses"
             return self._end(Ending.STALE_MEASUREMENTS, f"no {what} for {self.settings.executor.stale_after_s:g} s: "
                                                         f"the arm is held where it is", joints.q)
+        if self.estimator.tilt_rad > tipping_tilt_rad(self.model.scene):
+            return self._end(Ending.TASK_NOT_ACHIEVED, f"the cube has tipped over (its top "
+                                                       f"{math.degrees(self.estimator.tilt_rad):.0f} degrees from "
+                                                       f"upright): the arm is held where it is", joints.q)
         if now_s - self.started_s > self.time_limit_s:
             return self._end(Ending.TIME_LIMIT, f"the {self.time_limit_s:g} s time limit ran out", joints.q)
         if self._pending is not None and now_s >= self._pending.effective_s:

@@ -25,7 +25,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from cito_ros.execution.estimator import yaw_of
+from cito_ros.execution.estimator import tilt_of, yaw_of
 from cito_ros.execution.executor import ExecuteGoal
 from cito_ros.execution.world import Mismatch
 
@@ -71,6 +71,7 @@ class Outcome:
     orientation_error_rad: float
     at_rest: bool
     max_joint_speed: np.ndarray      # per joint over the execution, from /joint_states (rad/s)
+    max_tilt_rad: float              # the true cube's, over the execution and the wait for rest
     phases: tuple[str, ...]          # every phase the feedback showed, in order of first appearance
     round_trip_s: float              # from the goal sent to its result
 
@@ -88,6 +89,7 @@ class Operator:
         self.joints: list[JointState] = []
         self.feedback: list = []
         self.true_poses: list[tuple[float, np.ndarray, float]] = []  # (stamp, position, yaw)
+        self.max_tilt_rad = 0.0  # of the true cube since the last execution began
         qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
         self.node.create_subscription(JointState, "/joint_states", self.joints.append, qos)
         self.node.create_subscription(PoseStamped, "/sim/true_object_pose", self._on_true_pose, qos)
@@ -97,6 +99,7 @@ class Operator:
         stamp = message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
         self.true_poses = [*self.true_poses[-9:], (stamp, np.array([p.x, p.y, p.z]),
                                                    yaw_of(np.array([o.w, o.x, o.y, o.z])))]
+        self.max_tilt_rad = max(self.max_tilt_rad, tilt_of(np.array([o.w, o.x, o.y, o.z])))
 
     def spin(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -155,7 +158,7 @@ class Operator:
     def execute(self, goal: ExecuteGoal, rest_speed_m_s: float, start_tries: int = 10) -> Outcome:
         """One execution to its end (begun as `start` does), then the true cube awaited at rest (at most
         REST_WAIT_S)."""
-        began = time.monotonic()
+        began, self.max_tilt_rad = time.monotonic(), 0.0
         result = self.wait(self.start(goal, start_tries).get_result_async()).result
         round_trip = time.monotonic() - began
         speeds = np.max([np.abs(m.velocity) for m in self.joints], axis=0) if self.joints else np.zeros(7)
@@ -168,7 +171,8 @@ class Operator:
         _, position, yaw = self.true_poses[-1]
         position_error, orientation_error = goal.errors(position[:2], yaw)
         phases = tuple(dict.fromkeys(f.phase for f in self.feedback))
-        return Outcome(result, position_error, orientation_error, at_rest, speeds, phases, round_trip)
+        return Outcome(result, position_error, orientation_error, at_rest, speeds, self.max_tilt_rad, phases,
+                       round_trip)
 
     def true_speed_m_s(self) -> float:
         """The true cube's centre speed over the last two true poses (inf before two)."""

@@ -13,7 +13,8 @@ in each world is executed twice (cito_ros.execution.episode):
 - closed loop: the executor, from what it measures, its feedback policy replanned as it goes, in process, in
   lock step with the world (every replan's compute time passes on the world's clock before it takes effect).
 
-Success is judged at rest on the world's truth: within 2 cm and 0.15 rad, and within 2 cm and 0.1 rad.
+Success is judged at rest on the world's truth: the cube upright (never tipped past its edge) and within 2 cm and
+0.15 rad, and within 2 cm and 0.1 rad. Cubes that tipped over are counted in the report.
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from cito_ros.execution.episode import run_closed_loop, run_open_loop
+from cito_ros.execution.estimator import tipping_tilt_rad
 from cito_ros.execution.executor import ExecuteGoal
 from cito_ros.execution.world import Mismatch, SimulatedWorld
 from cito_ros.model.scene import start_configuration
@@ -66,7 +68,8 @@ def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Set
         result = run_closed_loop(settings, target, world)
     return {"goal": goal.index, "world": mismatch.name, "mode": mode, "contact_model": model,
             "offset_m": list(world_mismatch.offset_m), "offset_yaw_rad": world_mismatch.offset_yaw_rad,
-            "steady_reach_margin_m": steady_margin_m(goal, settings), **result.as_dict()}
+            "steady_reach_margin_m": steady_margin_m(goal, settings),
+            "tipped": result.max_tilt_rad >= tipping_tilt_rad(world.scene), **result.as_dict()}
 
 
 def jobs(goals: list[Goal], model: str, settings: Settings, worlds=WORLDS) -> list:
@@ -93,6 +96,7 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                     continue
                 out.setdefault(name, {}).setdefault(world, {})[mode] = {
                     "episodes": len(rows), "success": sum(r["success"] for r in rows),
+                    "tipped": sum(r.get("tipped", False) for r in rows),
                     "success_tight": sum(r["success_tight"] for r in rows),
                     "position_error_m": _stats([r["position_error_m"] for r in rows]),
                     "max_joint_speed_ratio": _stats([r["max_joint_speed_ratio"] for r in rows]),
@@ -132,6 +136,10 @@ def markdown(summary: dict[str, Any]) -> str:
                     f"{'-' if rate is None else f'{rate:.1f}'} | {'-' if compute is None else f'{1e3 * compute:.0f}'} | "
                     f"{speed['median']:.2f} / {speed['p90']:.2f} |")
         lines.append("")
+    tipped = [(world, mode, e["tipped"]) for zone_worlds in summary["zones"].values()
+              for world, modes in zone_worlds.items() for mode, e in modes.items() if e["tipped"]]
+    where = "; ".join(f"{n} in {world}, {mode.replace('_', ' ')}" for world, mode, n in tipped)
+    lines.append(f"Cubes tipped over (the true cube past its edge, never a success): {where or 'none'}.")
     rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
     if rate["median"] is not None:
         lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "
