@@ -14,7 +14,7 @@ from typing import Any, Callable
 import numpy as np
 
 from cito_ros.execution.episode import TIGHT_YAW_RAD, at_goal
-from cito_ros.execution.estimator import tipping_tilt_rad
+from cito_ros.execution.estimator import tipped_over
 from cito_ros.execution.executor import ExecuteGoal
 from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner.builder import PushRequest, build_problem
@@ -60,7 +60,7 @@ def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, mode
         outcome = operator.execute(target, settings.task.rest_speed_m_s)
     finally:
         stop(sim)
-    task, result, upright = settings.task, outcome.result, outcome.max_tilt_rad < tipping_tilt_rad(scene)
+    task, result, upright = settings.task, outcome.result, not tipped_over(scene, outcome.max_tilt_rad)
     rate = result.replan_rate_hz or math.nan
     return {"goal": goal.index, "world": world.name, "mode": "closed_loop", "contact_model": model,
             "offset_m": list(mismatch.offset_m), "offset_yaw_rad": mismatch.offset_yaw_rad,

@@ -78,7 +78,7 @@ def _goal(args, settings) -> tuple[float, float, float]:
 def _execute(args) -> int:
     """The push closed loop through the nodes and open loop in process, in DEMO_WORLD, side by side."""
     from cito_ros.execution.episode import at_goal, run_open_loop
-    from cito_ros.execution.estimator import tipping_tilt_rad
+    from cito_ros.execution.estimator import tipped_over
     from cito_ros.execution.executor import ExecuteGoal
     from cito_ros.execution.world import Mismatch, SimulatedWorld
     from cito_ros.model.scene import start_configuration
@@ -110,7 +110,7 @@ def _execute(args) -> int:
     result = closed.result
     # both on the world's truth (the executor's own verdict, from the camera, is in its message below)
     arrived = at_goal(settings.task, closed.at_rest, closed.position_error_m, closed.orientation_error_rad,
-                      upright=closed.max_tilt_rad < tipping_tilt_rad(open_world.scene))
+                      upright=not tipped_over(open_world.scene, closed.max_tilt_rad))
     print(f"  {'':24}{'open loop':>22}{'closed loop':>22}")
     print(f"  {'at the goal (2 cm, 0.15 rad)':<28}{'yes' if opened.success else 'no':>18}"
           f"{'yes' if arrived else 'no':>22}")

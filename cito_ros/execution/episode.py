@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from cito_ros.execution.estimator import tilt_of, tipping_tilt_rad, yaw_of
+from cito_ros.execution.estimator import tilt_of, tipped_over, yaw_of
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
 from cito_ros.execution.policy import bias_torques, hold_torques
 from cito_ros.execution.world import SimulatedWorld
@@ -40,7 +40,8 @@ class Episode:
     orientation_error_rad: float
     at_rest: bool
     max_joint_speed_ratio: float     # the world's arm over the whole run
-    max_tilt_rad: float              # the world's cube over the whole run (past tipping_tilt_rad: it fell over)
+    max_tilt_rad: float              # the world's cube over the whole run
+    tipped: bool                     # past its edge on the way (estimator.tipped_over): never a success
     duration_s: float                # on the world's clock, to the end of the execution
     ending: str                      # the executor's (closed loop), "executed" (open loop), or why nothing ran
     message: str
@@ -134,7 +135,7 @@ class Watch:
     @property
     def upright(self) -> bool:
         """Whether the cube never tipped past its edge (a cube that fell onto its side is not at any flat goal)."""
-        return self.max_tilt_rad < tipping_tilt_rad(self.world.scene)
+        return not tipped_over(self.world.scene, self.max_tilt_rad)
 
 
 def at_goal(task, at_rest: bool, position_m: float, orientation_rad: float, yaw_tolerance_rad: float | None = None,
@@ -150,7 +151,7 @@ def _episode(mode: str, settings: Settings, position: float, orientation: float,
     task, upright = settings.task, watch.upright
     return Episode(mode, at_goal(task, at_rest, position, orientation, upright=upright),
                    at_goal(task, at_rest, position, orientation, TIGHT_YAW_RAD, upright), position, orientation,
-                   at_rest, watch.max_joint_speed_ratio, watch.max_tilt_rad, *rest)
+                   at_rest, watch.max_joint_speed_ratio, watch.max_tilt_rad, not upright, *rest)
 
 
 def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal, rest_speed_m_s: float) -> tuple[float, float, bool]:

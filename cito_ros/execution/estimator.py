@@ -38,6 +38,11 @@ def tipping_tilt_rad(scene: Scene) -> float:
     return math.atan2(float(half[0]), float(half[2]))
 
 
+def tipped_over(scene: Scene, tilt_rad: float) -> bool:
+    """Whether a cube tilted by tilt_rad (tilt_of) is past tipping_tilt_rad: fallen, or falling, onto its side."""
+    return tilt_rad >= tipping_tilt_rad(scene)
+
+
 class StateEstimator:
     """The state estimate (see the module docstring) in `scene`'s model; `resting_state` gives the cube's
     resting height and everything the measurements do not (the table, the time, the actuators)."""

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cito_ros.execution.estimator import StateEstimator, tipping_tilt_rad, yaw_of
+from cito_ros.execution.estimator import StateEstimator, tipped_over, yaw_of
 from cito_ros.execution.mpc import PushModel, servo_gains
 from cito_ros.execution.policy import Policy, Retreat, bias_torques, within_speed_limits
 from cito_ros.execution.world import JointReading, PoseReading
@@ -164,7 +164,7 @@ class Executor:
             what = "joint states" if now_s - self._joints_arrival_s > stale else "cube poses"
             return self._end(Ending.STALE_MEASUREMENTS, f"no {what} for {self.settings.executor.stale_after_s:g} s: "
                                                         f"the arm is held where it is", joints.q)
-        if self.estimator.tilt_rad > tipping_tilt_rad(self.model.scene):
+        if tipped_over(self.model.scene, self.estimator.tilt_rad):
             return self._end(Ending.TASK_NOT_ACHIEVED, f"the cube has tipped over (its top "
                                                        f"{math.degrees(self.estimator.tilt_rad):.0f} degrees from "
                                                        f"upright): the arm is held where it is", joints.q)

@@ -122,9 +122,8 @@ class Scene:
         spec.geom(OBJECT_GEOM).size = [h, h, h]
         spec.geom(OBJECT_GEOM).mass = obj.mass_kg
         site, turn = spec.site(OBJECT_CANDIDATE), pushed_face(obj.position_m, obj.yaw_rad) * math.pi / 2
-        site.pos = [-h, 0.0, 0.0]
+        site.pos = [-h * math.cos(turn), -h * math.sin(turn), 0.0] if turn else [-h, 0.0, 0.0]
         if turn:  # another face than the model file's (its -x): the candidate turned about the cube's z with it
-            site.pos = [-h * math.cos(turn), -h * math.sin(turn), 0.0]
             site.quat = [math.cos((turn + math.pi) / 2), 0.0, 0.0, math.sin((turn + math.pi) / 2)]
         body = spec.body(OBJECT_BODY)
         body.pos = [obj.position_m[0], obj.position_m[1], TABLE_TOP_Z_M + h]

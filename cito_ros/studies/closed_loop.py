@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 
 from cito_ros.execution.episode import run_closed_loop, run_open_loop
-from cito_ros.execution.estimator import tipping_tilt_rad
 from cito_ros.execution.executor import ExecuteGoal
 from cito_ros.execution.world import Mismatch, SimulatedWorld
 from cito_ros.model.scene import start_configuration
@@ -68,8 +67,7 @@ def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Set
         result = run_closed_loop(settings, target, world)
     return {"goal": goal.index, "world": mismatch.name, "mode": mode, "contact_model": model,
             "offset_m": list(world_mismatch.offset_m), "offset_yaw_rad": world_mismatch.offset_yaw_rad,
-            "steady_reach_margin_m": steady_margin_m(goal, settings),
-            "tipped": result.max_tilt_rad >= tipping_tilt_rad(world.scene), **result.as_dict()}
+            "steady_reach_margin_m": steady_margin_m(goal, settings), **result.as_dict()}
 
 
 def jobs(goals: list[Goal], model: str, settings: Settings, worlds=WORLDS) -> list:

@@ -62,11 +62,11 @@ def face_needed(direction_rad: float, object_position_m, object_yaw_rad: float) 
     return FACES[0] if off <= math.pi / 4 else FACES[1] if off <= 3 * math.pi / 4 else FACES[2]
 
 
-def region(settings: Settings) -> dict[str, Any]:
+def region(settings: Settings, scene: Scene | None = None) -> dict[str, Any]:
     """Where goals can be (the `any` distribution's region, drawn in the report): the table top the cube's centre
     stays on, the scene's push reach (Scene.push_reach_m: the farthest a goal may be from the arm base), and the
-    cube's start."""
-    scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
+    cube's start. `scene`: the settings' scene, if already built."""
+    scene = Scene(contact_model("vscm", settings.contact_models), settings.scene) if scene is None else scene
     low, high, _ = scene.table_top()
     half = float(scene.object_half_size[0])
     return {"table_low_m": (low + half).tolist(), "table_high_m": (high - half).tolist(),
@@ -82,8 +82,7 @@ def draw_goals(n: int, seed: int, settings: Settings | None = None, distribution
     settings = load_settings() if settings is None else settings
     scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
     (x0, y0), yaw0 = settings.scene.object.position_m, settings.scene.object.yaw_rad
-    low, high, _ = scene.table_top()
-    half = float(scene.object_half_size[0])
+    where = region(settings, scene)
     rng = np.random.default_rng(seed)
     goals, refused = [], []
     while len(goals) < n:
@@ -94,7 +93,7 @@ def draw_goals(n: int, seed: int, settings: Settings | None = None, distribution
             yaw = float(rng.uniform(-YAW_RANGE_RAD, YAW_RANGE_RAD))
             target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
         else:  # the whole table top the cube fits on; make_task refuses what is beyond the arm's push reach
-            target = tuple(float(v) for v in rng.uniform(low + half, high - half))
+            target = tuple(float(v) for v in rng.uniform(where["table_low_m"], where["table_high_m"]))
             yaw = float(rng.uniform(-math.pi, math.pi))
             push, direction = math.hypot(target[0] - x0, target[1] - y0), math.atan2(target[1] - y0, target[0] - x0)
         try:
