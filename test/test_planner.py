@@ -2,6 +2,8 @@
 statuses and determinism. Real MuJoCo, real iLQR and IPOPT."""
 import dataclasses
 import math
+import subprocess
+import sys
 import threading
 import time
 
@@ -208,6 +210,22 @@ def test_iteration_limit(settings):
 def test_time_limit(settings):
     result = plan_push("vscm", 7, settings=settings.with_overrides({"solver.time_limit_s": 1e-3}))
     assert result.status is Status.TIME_LIMIT and result.trajectory.finite
+
+
+def test_an_iteration_budget_stops_the_solve_where_a_loaded_machine_stops_it_too(settings):
+    """The budget counts iterations, not seconds: the solve stops after that many over its stages, and the plan
+    is the same with two busy processes beside it (where a time limit would take whichever plan it had)."""
+    budgeted = settings.with_overrides({"solver.iteration_budget": 3, "stages.scripted.enabled": False})
+    idle = plan_push("vscm", 7, settings=budgeted)
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        loaded = plan_push("vscm", 7, settings=budgeted)
+    finally:
+        for hog in hogs:
+            hog.kill()
+    assert idle.status is Status.BUDGET_SPENT and idle.trajectory.finite
+    assert sum(stage.iterations for stage in idle.stages) == 3
+    assert np.array_equal(idle.knot_torques_Nm, loaded.knot_torques_Nm)
 
 
 def test_same_case_twice_gives_identical_plans(settings):

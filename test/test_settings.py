@@ -57,6 +57,8 @@ def test_settings_round_trip_through_the_parameter_tree(settings):
     ({"solver.max_iter": 0}, "solver.max_iter must be a positive integer, got 0"),
     ({"solver.max_iter": 2.5}, "solver.max_iter must be an integer, got 2.5"),
     ({"solver.time_limit_s": -1.0}, "solver.time_limit_s must be positive, got -1.0"),
+    ({"solver.iteration_budget": -1}, "solver.iteration_budget must be"),
+    ({"executor.plan_iterations": 0}, "executor.plan_iterations must be a positive integer"),
     ({"solver.stall_iterations": 0}, "solver.stall_iterations must be a positive integer"),
     ({"solver.scale_variables": "yes"}, "solver.scale_variables must be true or false"),
     ({"horizon_s": -1.0}, "horizon_s must be positive"),

@@ -29,6 +29,7 @@ class Status(enum.Enum):
     GOAL_REACHED = "goal_reached"        # the stage's plan, executed, is at the goal with margin: done early
     ITERATION_LIMIT = "iteration_limit"  # best iterate after max_iter iterations
     TIME_LIMIT = "time_limit"            # best iterate when the time limit ran out
+    BUDGET_SPENT = "budget_spent"        # best iterate when the solve's iteration budget ran out
     CANCELLED = "cancelled"              # best iterate when cancel was set
     SOLVER_FAILED = "solver_failed"      # the solver gave up (restoration failure, ...)
     NUMERICAL_ERROR = "numerical_error"  # NaN/Inf or MuJoCo warnings in the planned motion
@@ -41,7 +42,7 @@ class Status(enum.Enum):
     @property
     def interrupted(self) -> bool:
         """Whether the solve was stopped from outside (no further stage may run)."""
-        return self in (Status.CANCELLED, Status.TIME_LIMIT)
+        return self in (Status.CANCELLED, Status.TIME_LIMIT, Status.BUDGET_SPENT)
 
 
 @dataclass(frozen=True)

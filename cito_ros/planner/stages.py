@@ -55,12 +55,22 @@ class Outcome:
 
 
 class SolveClock:
-    """What the starts of one solve share: the clock, the settings and the callback."""
+    """What the starts of one solve share: the clock, the iteration budget, the settings and the callback."""
 
     def __init__(self, settings: Settings, callback: Callable[[IterationLog], None] | None):
         self.settings, self.callback = settings, callback
         self.started = time.perf_counter()
+        self.iterations = 0
         self._lock = threading.Lock()
+
+    def spend(self) -> bool:
+        """Count one iteration; whether the solve's iteration budget (solver.iteration_budget) is spent. With
+        stages.parallel the speculative start's iterations count too, so there the plan at the budget depends
+        on the threads' timing."""
+        budget = self.settings.solver.iteration_budget
+        with self._lock:
+            self.iterations += 1
+            return 0 < budget <= self.iterations
 
     def report(self, entry: IterationLog) -> None:
         if self.callback is not None:
@@ -99,7 +109,8 @@ class StartRun:
             return executed.position_error_m, executed.reaches(self.clock.settings)
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
                                    self.stop, self.clock.report, f"{self.prefix}{name}",
-                                   problem.cost.virtual_force, None if problem.cost.virtual_force else goal)
+                                   problem.cost.virtual_force, None if problem.cost.virtual_force else goal,
+                                   self.clock.spend)
         phases = problem.simulator.clock.read()
         outcome = solver.solve(problem, start, lower, upper, monitor)
         phases, solved = problem.simulator.clock.read() - phases, time.perf_counter()

@@ -89,6 +89,7 @@ class ExecutorSettings:
         "the executor's plans: tracking.world_friction_scales for them (a plan at the goal ends the search only if "
         "the executor's own servo also brings the cube there in each such world)", positive=True)
     world_mass_scales: tuple[float, ...] = setting("and tracking.world_mass_scales for them", positive=True)
-    plan_time_limit_s: float = setting("the planner's time for one push (the best plan by then is taken) (s)",
-                                       positive=True)
+    plan_iterations: int = setting("the planner's iterations for one push (solver.iteration_budget: the best plan "
+                                   "by then is taken, the same however loaded the machine is)", minimum=1)
+    plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)
     time_limit_s: float = setting("an execution's wall-clock limit where the goal gives none (s)", positive=True)

@@ -26,6 +26,9 @@ class DerivativeSettings:
 class SolverSettings:
     max_iter: int = setting("IPOPT iterations per stage", minimum=1)
     time_limit_s: float = setting("wall clock of the whole solve, checked every iteration (s)", positive=True)
+    iteration_budget: int = setting("iterations of the whole solve, over all its stages and starts (0: none): "
+                                    "unlike the time limit, where it stops does not hang on the machine's load",
+                                    minimum=0)
     stall_iterations: int = setting("stop when the best cost improved by less than stall_tolerance over this "
                                     "many iterations", minimum=1)
     stall_tolerance: float = setting("relative cost improvement below which the solve has stalled", minimum=0.0)

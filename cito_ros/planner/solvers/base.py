@@ -82,14 +82,18 @@ class IterationMonitor:
     """Logs the iterations of one stage and decides when it must stop.
 
     `record` is called by the solver once per iteration with the iteration's cost and constraint
-    violation and the point it last evaluated; it returns the Status to stop with, or None.
+    violation and the point it last evaluated; it returns the Status to stop with, or None. `spend`, where
+    given, counts each iteration after the first record (the stage's start) against the solve's iteration budget
+    and says whether that is spent.
     """
 
     def __init__(self, settings: SolverSettings, started: float, iteration_offset: int,
                  violation_tolerance: float, cancel: threading.Event | None,
                  callback: Callable[[IterationLog], None] | None, stage: str = "", virtual_force: bool = True,
-                 goal: Callable[[NlpPoint], tuple[float, bool]] | None = None):
+                 goal: Callable[[NlpPoint], tuple[float, bool]] | None = None,
+                 spend: Callable[[], bool] | None = None):
         self.settings, self.started, self.iteration_offset = settings, started, iteration_offset
+        self.spend = spend
         # a point's executed position error (logged instead of its rollout's) and whether the stage has
         # done its job there (Status.GOAL_REACHED)
         self.goal = goal
@@ -120,6 +124,8 @@ class IterationMonitor:
             return Status.CANCELLED
         if reached:
             return Status.GOAL_REACHED
+        if iteration > 0 and self.spend is not None and self.spend():  # iteration 0: the stage's start
+            return Status.BUDGET_SPENT
         if elapsed > self.settings.time_limit_s:
             return Status.TIME_LIMIT
         if self._stalled():
