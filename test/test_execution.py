@@ -351,5 +351,5 @@ def test_the_closed_loop_report_counts_the_cubes_that_tipped_over():
 
     summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False), record("open_loop", False)])
     assert summary["zones"]["steady"]["w"]["closed_loop"]["tipped"] == 1
-    assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop." in \
-        closed_loop.markdown(summary)
+    assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop, inside the " \
+        "steady reach." in closed_loop.markdown(summary)

@@ -134,9 +134,10 @@ def markdown(summary: dict[str, Any]) -> str:
                     f"{'-' if rate is None else f'{rate:.1f}'} | {'-' if compute is None else f'{1e3 * compute:.0f}'} | "
                     f"{speed['median']:.2f} / {speed['p90']:.2f} |")
         lines.append("")
-    tipped = [(world, mode, e["tipped"]) for zone_worlds in summary["zones"].values()
+    zone_names = {"steady": "inside the steady reach", "strike": "beyond it"}
+    tipped = [(zone_names[zone], world, mode, e["tipped"]) for zone, zone_worlds in summary["zones"].items()
               for world, modes in zone_worlds.items() for mode, e in modes.items() if e["tipped"]]
-    where = "; ".join(f"{n} in {world}, {mode.replace('_', ' ')}" for world, mode, n in tipped)
+    where = "; ".join(f"{n} in {world}, {mode.replace('_', ' ')}, {zone}" for zone, world, mode, n in tipped)
     lines.append(f"Cubes tipped over (the true cube past its edge, never a success): {where or 'none'}.")
     rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
     if rate["median"] is not None:
