@@ -100,19 +100,26 @@ def test_trajectory_virtual_force_is_gamma_along_the_inward_normal(simulators, s
 
 def test_native_tracking_equals_the_oracle_bit_for_bit(settings):
     """The joint trajectory controller (tracking.pd_motion, natively) steps as its Python oracle does: a
-    scripted push through contact, the torques saturating on a reference far off, and the hold after it."""
+    scripted push through contact, the torques saturating on a reference far off, a feed-forward added, and the
+    hold after it."""
     problem = build_problem(settings, PushRequest("vscm", 7)).problem
     simulator, gains = problem.simulator, settings.tracking
     path = joint_path(problem, settings.stages.scripted)
     steps = simulator.n_steps
     far_off = path.q[:steps] + np.linspace(0.0, 0.5, steps)[:, None]  # beyond the motor limits' reach
-    for q_ref, qdot_ref in ((path.q[:steps], path.qdot[:steps]), (far_off, path.qdot[:steps])):
-        native = tracking.pd_motion(simulator, problem.initial_state, q_ref, qdot_ref, gains)
-        python = oracle.pd_motion(simulator, problem.initial_state, q_ref, qdot_ref, gains)
+    # a feed-forward of up to 0.3 of the motor limits, rising and falling (an executor's servo runs a plan so)
+    effort = 0.3 * problem.scene.torque_limit * np.sin(np.linspace(0.0, 3.0, steps))[:, None]
+    for q_ref, qdot_ref, feed_forward in ((path.q[:steps], path.qdot[:steps], None),
+                                          (far_off, path.qdot[:steps], None),
+                                          (path.q[:steps], path.qdot[:steps], effort)):
+        native = tracking.pd_motion(simulator, problem.initial_state, q_ref, qdot_ref, gains, feed_forward)
+        python = oracle.pd_motion(simulator, problem.initial_state, q_ref, qdot_ref, gains, feed_forward)
         assert native.warnings == python.warnings
         for name, value in vars(native).items():
             if isinstance(value, np.ndarray):
                 np.testing.assert_array_equal(value, getattr(python, name), err_msg=name)
+    pd_alone = tracking.pd_motion(simulator, problem.initial_state, path.q[:steps], path.qdot[:steps], gains)
+    assert np.abs(native.q - pd_alone.q).max() > 1e-3  # the last motion's feed-forward moved the arm
     pushed = tracking.track(simulator, problem.initial_state, path, gains)
     assert pushed.contact_count.max() > 0  # the push touches the cube
     assert np.any(np.abs(tracking.pd_motion(simulator, problem.initial_state, far_off, path.qdot[:steps],

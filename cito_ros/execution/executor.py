@@ -365,7 +365,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
     return settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": executor.plan_iterations,
-        "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(),
+        "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(), "tracking.feed_forward": True,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
         "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],

@@ -83,7 +83,7 @@ def rollout(simulator: Simulator, oracle_scene: Scene, initial_state: np.ndarray
 
 
 def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray, qdot_ref: np.ndarray,
-              gains: TrackingSettings) -> Trajectory:
+              gains: TrackingSettings, feed_forward: np.ndarray | None = None) -> Trajectory:
     """tracking.pd_motion (the joint trajectory controller, natively cito_track) in Python, step by step."""
     scene, model = simulator.scene, simulator.model
     kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
@@ -95,6 +95,8 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
     sensordata = np.empty((steps, model.nsensordata))
     for t in range(steps):
         command = kp * (q_ref[t] - data.qpos[scene.arm_qpos_adr]) + kd * (qdot_ref[t] - data.qvel[scene.arm_dof_adr])
+        if feed_forward is not None:
+            command = feed_forward[t] + command
         controls[t, scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
         data.ctrl[:] = controls[t]
         mujoco.mj_step(model, data)

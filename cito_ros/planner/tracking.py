@@ -24,20 +24,22 @@ from cito_ros.settings import TrackingSettings
 
 
 class JointReference(Protocol):
-    """What the controller tracks: joint positions and velocities (n_steps + 1, 7) at every state (a
-    Trajectory, or a JointPath)."""
+    """What the controller tracks: joint positions and velocities (n_steps + 1, 7) at every state, and the
+    torques (n_steps, 7) it adds as feed-forward with gains.feed_forward (a Trajectory, or a JointPath)."""
 
     q: np.ndarray
     qdot: np.ndarray
+    control_torque_Nm: np.ndarray | None
 
 
 @dataclass(frozen=True)
 class JointPath:
     """Joint positions and velocities (n_steps + 1, 7) over the states of a horizon: the scripted start's
-    path (cito_ros.planner.scripted), or a plan's reference moved by an offset."""
+    path (cito_ros.planner.scripted, no torques), or a plan's reference moved by an offset (its torques)."""
 
     q: np.ndarray
     qdot: np.ndarray
+    control_torque_Nm: np.ndarray | None = None
 
 
 def smooth_offset(rng: np.random.Generator, n_knots: int, n_states: int,
@@ -58,7 +60,8 @@ def offset_references(reference: JointReference, n_knots: int, timestep_s: float
     moved = []
     for _ in range(count):
         offset, rate = smooth_offset(rng, n_knots, len(reference.q), timestep_s)
-        moved.append(JointPath(reference.q + amplitude_rad * offset, reference.qdot + amplitude_rad * rate))
+        moved.append(JointPath(reference.q + amplitude_rad * offset, reference.qdot + amplitude_rad * rate,
+                               reference.control_torque_Nm))
     return moved
 
 
@@ -120,16 +123,20 @@ def tracked_rest_error_m(simulator: Simulator, initial_state: np.ndarray, refere
 
 def track(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
           gains: TrackingSettings) -> Trajectory:
-    """Execute `reference` under PD control from initial_state."""
+    """Execute `reference` under PD control from initial_state, with its torques as feed-forward where
+    gains.feed_forward (as the executor's servo runs a plan) and it has them."""
     steps = simulator.n_steps
-    return pd_motion(simulator, initial_state, reference.q[:steps], reference.qdot[:steps], gains)
+    torques = reference.control_torque_Nm if gains.feed_forward else None
+    return pd_motion(simulator, initial_state, reference.q[:steps], reference.qdot[:steps], gains,
+                     None if torques is None else torques[:steps])
 
 
 def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray, qdot_ref: np.ndarray,
-              gains: TrackingSettings) -> Trajectory:
+              gains: TrackingSettings, feed_forward: np.ndarray | None = None) -> Trajectory:
     """len(q_ref) steps from initial_state, the controller's motor torques before step t
-    clamp(kp (q_ref[t] - q) + kd (qdot_ref[t] - qdot)) to the motor limits, every other control zero; natively
-    (cito_track; cito_ros.model.oracle.pd_motion is the same in Python)."""
+    clamp(feed_forward[t] + kp (q_ref[t] - q) + kd (qdot_ref[t] - qdot)) to the motor limits (no feed_forward:
+    the PD alone), every other control zero; natively (cito_track; cito_ros.model.oracle.pd_motion is the same in
+    Python)."""
     scene, model = simulator.scene, simulator.model
     steps = len(q_ref)
     states = np.empty((steps, simulator.nstate))
@@ -141,5 +148,5 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
                                                             scene.torque_limit))
     data = mujoco.MjData(model)  # a fresh one per motion: starts may run side by side
     _native.track(model._address, data._address, steps, len(scene.motor_ids), *floats, *indices, states, sensordata,
-                  controls, warnings)
+                  controls, warnings, None if feed_forward is None else np.ascontiguousarray(feed_forward, dtype=float))
     return simulator.trajectory(initial_state, states, sensordata, controls, warning_counts(warnings))

@@ -21,6 +21,8 @@ class LimitSettings:
 class TrackingSettings:
     kp: tuple[float, ...] = setting("PD position gains of the joint trajectory controller (N m/rad)", minimum=0.0)
     kd: tuple[float, ...] = setting("PD velocity gains (N m s/rad)", minimum=0.0)
+    feed_forward: bool = setting("the controller adds the plan's torques to its PD (a joint trajectory controller "
+                                 "with effort feed-forward, as the executor's servo runs a plan); false: the PD alone")
     max_error_increase_m: float = setting(
         "physical pipeline: a start's plan at the goal ends the search only if the PD controller's execution "
         "ends within this of its executed error; otherwise the next starts run (m)", minimum=0.0)

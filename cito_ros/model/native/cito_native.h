@@ -62,11 +62,13 @@ int cito_feedback_rollouts(const mjModel* m, mjData** datas, int nthread, const 
 // PD joint tracking (cito_ros.tracking): `steps` steps of d from initial_state (nstate,
 // mjSTATE_FULLPHYSICS; d reset first, as a fresh mjData), where before step s the motor
 // motor_ids[j] of joint j gets clamp(kp_j (q_ref[s, j] - q_j) + kd_j (qdot_ref[s, j] - qdot_j),
-// -torque_limit_j, torque_limit_j), q_j = qpos[qpos_adr[j]], qdot_j = qvel[dof_adr[j]], and every
-// other control is zero. Row-major arrays; q_ref, qdot_ref: steps x n_joints.
+// -torque_limit_j, torque_limit_j), q_j = qpos[qpos_adr[j]], qdot_j = qvel[dof_adr[j]], plus
+// feed_forward[s, j] inside the clamp where feed_forward is not NULL, and every other control is zero.
+// Row-major arrays; q_ref, qdot_ref, feed_forward: steps x n_joints.
 typedef struct {
   int steps, n_joints;
   const mjtNum *initial_state, *q_ref, *qdot_ref, *kp, *kd, *torque_limit;
+  const mjtNum* feed_forward;  // NULL: none
   const int *qpos_adr, *dof_adr, *motor_ids;
   mjtNum* states;      // out: steps x nstate, the state after each step
   mjtNum* sensordata;  // out: steps x nsensordata, the sensors before each step

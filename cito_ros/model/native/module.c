@@ -166,10 +166,10 @@ static PyObject* track(PyObject* self, PyObject* args) {
   unsigned long long model_address, data_address;
   CitoTracking t;
   PyObject *initial_state, *q_ref, *qdot_ref, *kp, *kd, *torque_limit, *qpos_adr, *dof_adr, *motor_ids, *states,
-      *sensordata, *controls, *warnings;
-  if (!PyArg_ParseTuple(args, "KKiiOOOOOOOOOOOOO", &model_address, &data_address, &t.steps, &t.n_joints,
+      *sensordata, *controls, *warnings, *feed_forward;
+  if (!PyArg_ParseTuple(args, "KKiiOOOOOOOOOOOOOO", &model_address, &data_address, &t.steps, &t.n_joints,
                         &initial_state, &q_ref, &qdot_ref, &kp, &kd, &torque_limit, &qpos_adr, &dof_adr,
-                        &motor_ids, &states, &sensordata, &controls, &warnings)) {
+                        &motor_ids, &states, &sensordata, &controls, &warnings, &feed_forward)) {
     return NULL;
   }
   const mjModel* m = (const mjModel*)(uintptr_t)model_address;
@@ -179,9 +179,11 @@ static PyObject* track(PyObject* self, PyObject* args) {
     return NULL;
   }
   Py_ssize_t nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), steps = t.steps, n = t.n_joints;
-  Py_buffer views[13];
+  int nview = feed_forward == Py_None ? 13 : 14;  // None: no feed-forward
+  t.feed_forward = NULL;
+  Py_buffer views[14];
   // each buffer, and the member of t that points at it
-  struct { PyObject* object; Py_ssize_t count; int writable; char format; const char* name; void* member; } specs[13] = {
+  struct { PyObject* object; Py_ssize_t count; int writable; char format; const char* name; void* member; } specs[14] = {
     {initial_state, nstate, 0, 'd', "initial_state", &t.initial_state},
     {q_ref, steps * n, 0, 'd', "q_ref", &t.q_ref}, {qdot_ref, steps * n, 0, 'd', "qdot_ref", &t.qdot_ref},
     {kp, n, 0, 'd', "kp", &t.kp}, {kd, n, 0, 'd', "kd", &t.kd}, {torque_limit, n, 0, 'd', "torque_limit", &t.torque_limit},
@@ -191,29 +193,30 @@ static PyObject* track(PyObject* self, PyObject* args) {
     {sensordata, steps * m->nsensordata, 1, 'd', "sensordata", &t.sensordata},
     {controls, steps * m->nu, 1, 'd', "controls", &t.controls},
     {warnings, mjNWARNING, 1, 'i', "warnings", &t.warnings},
+    {feed_forward, steps * n, 0, 'd', "feed_forward", &t.feed_forward},
   };
   int acquired = 0;
-  for (; acquired < 13; acquired++) {
+  for (; acquired < nview; acquired++) {
     if (get_buffer(specs[acquired].object, &views[acquired], specs[acquired].count, specs[acquired].writable,
                    specs[acquired].format, specs[acquired].name) != 0) {
       break;
     }
   }
   const char* invalid = NULL;
-  for (int j = 0; acquired == 13 && j < n && !invalid; j++) {
+  for (int j = 0; acquired == nview && j < n && !invalid; j++) {
     if (((const int*)views[6].buf)[j] < 0 || ((const int*)views[6].buf)[j] >= m->nq) invalid = "qpos_adr";
     else if (((const int*)views[7].buf)[j] < 0 || ((const int*)views[7].buf)[j] >= m->nv) invalid = "dof_adr";
     else if (((const int*)views[8].buf)[j] < 0 || ((const int*)views[8].buf)[j] >= m->nu) invalid = "motor_ids";
   }
   if (invalid) PyErr_Format(PyExc_ValueError, "%s has an index outside the model", invalid);
-  if (acquired == 13 && !invalid) {
-    for (int i = 0; i < 13; i++) *(void**)specs[i].member = views[i].buf;
+  if (acquired == nview && !invalid) {
+    for (int i = 0; i < nview; i++) *(void**)specs[i].member = views[i].buf;
     Py_BEGIN_ALLOW_THREADS
     cito_track(m, d, &t);
     Py_END_ALLOW_THREADS
   }
   for (int i = 0; i < acquired; i++) PyBuffer_Release(&views[i]);
-  if (acquired < 13 || invalid) return NULL;
+  if (acquired < nview || invalid) return NULL;
   Py_RETURN_NONE;
 }
 
@@ -231,9 +234,9 @@ static PyMethodDef methods[] = {
    "outputs into the preallocated arrays (see cito_native.h)."},
   {"track", track, METH_VARARGS,
    "track(model_address, data_address, steps, n_joints, initial_state, q_ref, qdot_ref, kp, kd, torque_limit,\n"
-   "qpos_adr, dof_adr, motor_ids, states, sensordata, controls, warnings)\n"
-   "PD joint tracking of q_ref, qdot_ref in the mjData, outputs into the preallocated arrays (see\n"
-   "cito_native.h)."},
+   "qpos_adr, dof_adr, motor_ids, states, sensordata, controls, warnings, feed_forward)\n"
+   "PD joint tracking of q_ref, qdot_ref (plus feed_forward, or None) in the mjData, outputs into the\n"
+   "preallocated arrays (see cito_native.h)."},
   {NULL, NULL, 0, NULL},
 };
 

@@ -15,6 +15,7 @@ int cito_track(const mjModel* m, mjData* d, const CitoTracking* t) {
       // the Python oracle's operations in its order (no contraction: -O2 without -mfma)
       mjtNum command = t->kp[j] * (q_ref[j] - d->qpos[t->qpos_adr[j]]) +
                        t->kd[j] * (qdot_ref[j] - d->qvel[t->dof_adr[j]]);
+      if (t->feed_forward) command = t->feed_forward[(size_t)step * n + j] + command;
       mjtNum limit = t->torque_limit[j];
       controls[t->motor_ids[j]] = command < -limit ? -limit : (command > limit ? limit : command);
     }
