@@ -10,7 +10,8 @@ import pytest
 
 from cito_ros.execution.episode import Watch, at_goal
 from cito_ros.execution.estimator import StateEstimator, tipping_tilt_rad
-from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Phase, compute
+from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Phase
+from cito_ros.execution.planning import compute, work_in_line
 from cito_ros.execution.policy import Policy, bias_torques, state_difference
 from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld
 from cito_ros.model.scene import start_configuration
@@ -84,7 +85,7 @@ def test_a_cube_at_rest_is_seen_where_the_mean_of_its_noisy_poses_puts_it(settin
 
 def test_a_policy_commands_its_torques_on_its_reference_and_pulls_back_off_it(settings):
     executor, world = started(settings)
-    executor.work(world.time_s)  # the push planned, in line
+    work_in_line(executor, world.time_s)  # the push planned, in line
     policy = executor._pending.policy
     scene = executor.model.scene
     step = 40
@@ -105,7 +106,7 @@ def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_
     works, active = [], []
     while executor.phase is not Phase.DONE and world.time_s < executor.time_limit_s + 5:  # it ends by its limit
         job = executor.job(world.time_s)
-        work = executor.work(world.time_s)
+        work = work_in_line(executor, world.time_s)
         if work is not None:
             works.append((job.now_s, work))
         before = executor.policy
@@ -122,7 +123,7 @@ def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_
 def pushing(settings, steps: int) -> tuple[Executor, SimulatedWorld]:
     """An execution planned and run for `steps` control steps."""
     executor, world = started(settings)
-    executor.work(world.time_s)
+    work_in_line(executor, world.time_s)
     for _ in range(steps):
         world.step(executor.command(world.time_s))
         deliver(executor, world)
@@ -160,6 +161,36 @@ def test_the_executor_keeps_every_joint_within_its_speed_limit_under_a_policy_th
     assert executor.phase is Phase.PUSHING
     assert max(raw) > 1.2
     assert max(limited) <= SPEED_GUARD + 0.01
+
+
+def test_a_push_whose_cube_leaves_its_path_is_cut_short_with_the_arm_held_where_it_is(settings):
+    """The cube knocked 6 cm sideways under the plate (as a slippery cube slides off a push that does not suit
+    it): the push stops within the camera's period and latency, well before its end, and the arm holds where it
+    was then; an undisturbed push runs to its end."""
+    executor, world = push_under_way(settings)
+    end_s = executor._push_end_s
+    for _ in range(20):  # the push under way, on its path
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert executor.phase is Phase.PUSHING and executor.pushes_cut == 0
+    adr = world.scene.object_qpos_adr
+    world.data.qpos[adr + 1] += 0.06
+    knocked_s = world.time_s
+    while executor.phase is Phase.PUSHING:
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert executor.phase is Phase.SETTLING and executor.pushes_cut == 1
+    assert world.time_s - knocked_s < 0.1 < end_s - world.time_s
+    held = executor._hold_q.copy()
+    for _ in range(40):
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert np.abs(world.joints().q - held).max() < 0.01
+    undisturbed, world = push_under_way(settings)
+    while undisturbed.phase is Phase.PUSHING:
+        world.step(undisturbed.command(world.time_s))
+        deliver(undisturbed, world)
+    assert undisturbed.pushes_cut == 0 and world.time_s >= undisturbed._push_end_s
 
 
 def test_a_push_is_replanned_while_it_runs_only_with_replans_on(settings):
@@ -204,7 +235,7 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     executor, world = started(strict)
     retreat_began = None
     while executor.pushes < 2 and world.time_s < 25:
-        executor.work(world.time_s)
+        work_in_line(executor, world.time_s)
         world.step(executor.command(world.time_s))
         deliver(executor, world)
         if executor.phase is Phase.RETREATING and retreat_began is None:
@@ -258,7 +289,7 @@ def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
     executor, world = started(strict)
     while executor.phase is not Phase.RETREATING and world.time_s < 20:
-        executor.work(world.time_s)
+        work_in_line(executor, world.time_s)
         world.step(executor.command(world.time_s))
         deliver(executor, world)
     assert executor.phase is Phase.RETREATING and executor.pushes == 1
@@ -279,7 +310,7 @@ def test_an_execution_begun_with_the_arm_against_the_cube_draws_it_back_to_the_s
     home = start_configuration(settings.beta)
     executor, world = started(settings)
     while executor.phase is not Phase.SETTLING and world.time_s < 20:
-        executor.work(world.time_s)
+        work_in_line(executor, world.time_s)
         world.step(executor.command(world.time_s))
         deliver(executor, world)
     executor.cancel()
@@ -343,13 +374,15 @@ def test_an_episode_with_a_cube_that_fell_onto_its_side_is_no_success(settings):
     assert at_goal(settings.task, True, 0.001, 0.01) and not at_goal(settings.task, True, 0.001, 0.01, upright=False)
 
 
-def test_the_closed_loop_report_counts_the_cubes_that_tipped_over():
+def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_and_the_pushes_cut_short():
     def record(mode: str, tipped: bool) -> dict:
         return {"world": "w", "mode": mode, "steady_reach_margin_m": 0.05, "success": False, "success_tight": False,
                 "position_error_m": 0.05, "max_joint_speed_ratio": 0.9, "pushes": 1, "replans": 0,
-                "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped}
+                "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped, "pushes_cut": 2 * tipped}
 
     summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False), record("open_loop", False)])
     assert summary["zones"]["steady"]["w"]["closed_loop"]["tipped"] == 1
     assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop, inside the " \
         "steady reach." in closed_loop.markdown(summary)
+    assert "Pushes cut short with the cube off their path (executor.off_path_m): 2, in 1 closed-loop episodes." in \
+        closed_loop.markdown(summary)

@@ -1,7 +1,7 @@
 """One push executed on a simulated robot, in this process, open loop or closed loop, judged on the world's truth.
 
 The world and the controller run in lock step, one world timestep at a time, on the world's clock. Closed loop,
-the executor's planning runs in line whenever it has a job (`Executor.work`): the world stands still while it
+the executor's planning runs in line whenever it has a job (`planning.work_in_line`): the world stands still while it
 computes, and the result takes effect once the world's clock has moved on by the compute time, the arm driven
 by the running policy meanwhile; so every replan costs on the robot's clock what it cost here. Open loop, the
 plan is made from where the planner was told the cube is, and a joint trajectory controller sends the plan's
@@ -22,6 +22,7 @@ import numpy as np
 
 from cito_ros.execution.estimator import tilt_of, tipped_over, yaw_of
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
+from cito_ros.execution.planning import work_in_line
 from cito_ros.execution.policy import bias_torques, hold_torques
 from cito_ros.execution.world import SimulatedWorld
 from cito_ros.planner.plan import plan_push
@@ -50,6 +51,7 @@ class Episode:
     replan_rate_hz: float            # 1 / the median replan compute time
     replan_compute_s: float          # median
     plan_compute_s: float            # the first plan's
+    pushes_cut: int = 0              # pushes cut short with the cube off their path (executor.off_path_m)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -74,7 +76,7 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
         step(bias_torques(executor.model.scene, executor._data, joints.q, joints.qdot))
     plan_compute_s = math.nan
     while executor.phase is not Phase.DONE:
-        work = executor.work(world.time_s)
+        work = work_in_line(executor, world.time_s)
         if work is not None and work.kind == "plan" and math.isnan(plan_compute_s):
             plan_compute_s = work.compute_s
         step(executor.command(world.time_s))
@@ -84,7 +86,7 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
     seconds = executor.replan_seconds
     return _episode("closed_loop", settings, position, orientation, at_rest, watch, duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
-                    float(np.median(seconds)) if seconds else math.nan, plan_compute_s)
+                    float(np.median(seconds)) if seconds else math.nan, plan_compute_s, executor.pushes_cut)
 
 
 def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,

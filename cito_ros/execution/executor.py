@@ -1,21 +1,22 @@
-"""The closed-loop executor: a push planned from the measured state, executed by its feedback policy, replanned
-from the measured state while it runs, and pushed again from where the cube comes to rest if it is not there.
+"""The closed-loop executor: a push planned from the measured state, executed by its feedback policy, replanned from
+the measured state while it runs, and pushed again from where the cube comes to rest if it is not there.
 
-ROS-free and clock-agnostic: the caller feeds measurements (`on_joints`, `on_pose`) and asks for the joint
-torques to send at every control step (`command`, never blocking). The planning (the first plan, the MPC
-replans, a new push) comes as a `Job` (`job`), picklable, whose outcome `compute` gives wherever there is the
-time: in another process beside the control loop on a robot, in line in a simulation (`work`). A plan computed
-from the state at time t takes effect at t plus its compute time on the robot's clock, never earlier: `accept`
-takes it with that time, and `command` swaps it in then.
+ROS-free and clock-agnostic: the caller feeds measurements (`on_joints`, `on_pose`) and asks for the joint torques
+to send at every control step (`command`, never blocking). The planning (the first plan, the MPC replans, a new
+push) comes as a `Job` (`job`), picklable, whose outcome `planning.compute` gives wherever there is the time: in
+another process beside the control loop on a robot, in line in a simulation (`planning.work_in_line`). A plan
+computed from the state at time t takes effect at t plus its compute time on the robot's clock, never earlier:
+`accept` takes it with that time, and `command` swaps it in then.
 
 Phases: `planning` (the arm held while a push is planned), `pushing` (the policy, replanned), `settling` (the arm
-held at the push's end until the cube has come to rest; then the push is judged by the camera: at the goal,
-done; else, while pushes and time are left, `retreating`: the arm goes back along a minimum-jerk path to where
-the execution started, and a new push is planned from there, made only if the model predicts it brings the
-cube closer (both errors against their tolerances)), `done`. An execution begun with the arm against the cube
-(where the last one ended or was cancelled) begins `retreating` to the start pose of settings.beta. Measurements
-older than executor.stale_after_s, a cancel, the time limit, a cube seen tipped past its edge or a push that
-cannot be planned end the execution with the arm held where it is.
+held at the push's end, or where it is once the cube is executor.off_path_m off the push's path, until the cube has
+come to rest; then the push is judged by the camera: at the goal, done; else, while pushes and time are left,
+`retreating`: the arm goes back along a minimum-jerk path to where the execution started, and a new push is planned
+from there, made only if the model predicts it brings the cube closer (both errors against their tolerances)),
+`done`. An execution begun with the arm against the cube (where the last one ended or was cancelled) begins
+`retreating` to the start pose of settings.beta. Measurements older than executor.stale_after_s, a cancel, the time
+limit, a cube seen tipped past its edge or a push that cannot be planned end the execution with the arm held where
+it is.
 """
 from __future__ import annotations
 
@@ -23,20 +24,16 @@ import dataclasses
 import enum
 import math
 import threading
-import time
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over, yaw_of
-from cito_ros.execution.mpc import PushModel, servo_gains
+from cito_ros.execution.mpc import PushModel
 from cito_ros.execution.policy import Policy, Retreat, bias_torques, within_speed_limits
 from cito_ros.execution.world import JointReading, PoseReading
-from cito_ros.planner import push_limits
-from cito_ros.planner.builder import PushRequest, build_problem
-from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import Status, tolerance_ratio
+from cito_ros.planner.results import tolerance_ratio
 from cito_ros.settings import SceneConfig, Settings
 
 SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
@@ -113,6 +110,7 @@ class Executor:
         self._joints_arrival_s = -math.inf
         self.started_s: float | None = None
         self.pushes = 0
+        self.pushes_cut = 0                    # pushes cut short with the cube off their path (executor.off_path_m)
         self.replan_seconds: list[float] = []  # every replan's compute time, taken or not
         self.replans_taken = 0                 # the replans that improved on the running plan and took its place
         self._planner_free_s = -math.inf
@@ -175,6 +173,9 @@ class Executor:
             self.policy = work.policy
             if work.kind == "plan":
                 self.phase, self._push_end_s = Phase.PUSHING, work.policy.end_s
+        if self.phase is Phase.PUSHING and self._off_path_m() > self.settings.executor.off_path_m:
+            self.pushes_cut += 1
+            self._push_end_s = now_s
         if self.phase is Phase.PUSHING and now_s >= self._push_end_s:  # held where it is: no jump to a reference
             self.phase, self._hold_q, self._settle_since_s = Phase.SETTLING, joints.q.copy(), now_s
         if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
@@ -195,6 +196,14 @@ class Executor:
             # judged again with the arm away: the judgement after the push can disagree (docs/ros.md)
             if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
                 self._succeeded(*self.errors(now_s), ", once the arm drew back")
+
+    def _off_path_m(self) -> float:
+        """How far the cube's last measured position is from where the running push's reference has it at that
+        pose's instant (before the push: its start)."""
+        last, _, stamp = self.estimator.object_motion()
+        reference = self.policy.reference
+        step = int(np.clip(round((stamp - self.policy.start_s) / self.policy.timestep_s), 0, len(reference) - 1))
+        return float(np.hypot(*(last[1:3] - self.model.scene.object_qpos(reference[step])[:2])))
 
     def _succeeded(self, position_m: float, orientation_rad: float, after: str) -> bool:
         """Whether the cube at rest is within the task's tolerances; if so, the execution ends as succeeded."""
@@ -295,15 +304,6 @@ class Executor:
             self._pending = Work(outcome, effective, elapsed_s, job.kind)
             return self._pending
 
-    def work(self, now_s: float) -> Work | None:
-        """job, compute and accept in line (blocking): for a caller whose clock stands still while it computes."""
-        job = self.job(now_s)
-        if job is None:
-            return None
-        began = time.perf_counter()
-        outcome = compute(self.settings, self.goal, job)
-        return self.accept(job, outcome, time.perf_counter() - began)
-
     @property
     def replans(self) -> int:
         return len(self.replan_seconds)
@@ -345,52 +345,3 @@ def push_model(settings: Settings, goal: ExecuteGoal) -> PushModel:
         _MODELS[goal] = (settings, PushModel(settings, goal.contact_model, config,
                                              np.asarray(goal.target_position_m, dtype=float), goal.target_yaw_rad))
     return _MODELS[goal][1]
-
-
-def warm_up(settings: Settings) -> None:
-    """What a planning process pays for once: the imports, the push reach and the steady push reach (every
-    plan's reach zone: 1.4 s, which the first plan paid before) of the configured scene."""
-    posed = build_problem(settings, PushRequest(settings.node.default_contact_model))
-    push_limits.steady_reach_m(posed.scene, posed.initial_state)
-
-
-def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
-    """The planner's settings for the executor's pushes: executor.plan_iterations within the time left (at most
-    plan_time_limit_s), and a plan checked with the controller that will run it, the executor's servo, in the model
-    and in the worlds of executor.world_*_scales (so that a push whose outcome hangs on the cube's friction and mass
-    is not taken). Its first script is made with the servo, the next with the planner's stiff gains (gain_scale 1 /
-    servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes."""
-    executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
-    kp, kd = servo_gains(settings)
-    return settings.with_overrides({
-        "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
-        "solver.iteration_budget": executor.plan_iterations,
-        "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(), "tracking.feed_forward": True,
-        "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
-        "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
-        "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],
-        "stages.scripted.variants.gain_scale": [script.gain_scale / executor.servo_gain_scale, *variants.gain_scale],
-        "tracking.world_friction_scales": list(executor.world_friction_scales),
-        "tracking.world_mass_scales": list(executor.world_mass_scales)})
-
-
-def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
-    """A job's outcome (blocking; in this process or another): a push planned from rest (plan_push from the
-    measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there."""
-    model = push_model(settings, goal)
-    if job.kind == "replan":
-        return model.replan(job.now_s, job.state, job.running, settings.executor.replan_budget_s)
-    (x, y), yaw = job.object_pose
-    request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=np.array(goal.target_position_m),
-                          target_yaw_rad=goal.target_yaw_rad, scene=goal.scene, object_pose=((x, y), yaw))
-    try:
-        result = plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
-                           target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
-                           settings=executor_plan_settings(settings, job.time_left_s))
-        start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
-                              request).initial_state
-    except ValueError as error:
-        return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
-    if result.status is Status.NUMERICAL_ERROR:
-        return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
-    return model.policy(job.now_s, start, result.knot_torques_Nm)

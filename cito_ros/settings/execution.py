@@ -72,6 +72,10 @@ class ExecutorSettings:
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
+    off_path_m: float = setting("a push is cut short, the arm held where it is, once the measured cube is this far "
+                                "from where the push's reference has it at that instant: the rest of it would push "
+                                "the cube on astray; the next push starts from where it comes to rest (m)",
+                                positive=True)
     object_gain_scale: float = setting("the plan's feedback gains on the cube's state: this times the backward pass's "
                                        "(0: the arm's servo alone; docs/experiments.md has what the full gains did)",
                                        minimum=0.0)

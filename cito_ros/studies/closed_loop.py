@@ -103,8 +103,10 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                     "replan_compute_s": _stats([r["replan_compute_s"] for r in rows]),
                     "replans": _stats([float(r["replans"]) for r in rows])}
     closed = [r for r in records if r["mode"] == "closed_loop"]
+    cut = [r["pushes_cut"] for r in closed if "pushes_cut" in r]  # not counted through the nodes
     return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]),
-            "replan_compute_s": _stats([r["replan_compute_s"] for r in closed])}
+            "replan_compute_s": _stats([r["replan_compute_s"] for r in closed]),
+            "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None}
 
 
 def markdown(summary: dict[str, Any]) -> str:
@@ -139,6 +141,10 @@ def markdown(summary: dict[str, Any]) -> str:
               for world, modes in zone_worlds.items() for mode, e in modes.items() if e["tipped"]]
     where = "; ".join(f"{n} in {world}, {mode.replace('_', ' ')}, {zone}" for zone, world, mode, n in tipped)
     lines.append(f"Cubes tipped over (the true cube past its edge, never a success): {where or 'none'}.")
+    if summary["pushes_cut"] is not None:
+        cut = summary["pushes_cut"]
+        lines.append(f"Pushes cut short with the cube off their path (executor.off_path_m): {cut['pushes']}, in "
+                     f"{cut['episodes']} closed-loop episodes.")
     rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
     if rate["median"] is not None:
         lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "

@@ -1,0 +1,78 @@
+"""The executor's planning side: what a planning process runs for the executor (cito_ros.execution.executor), in
+another process beside the control loop on a robot or in line in a simulation. `compute` turns a `Job` into its
+outcome: a push planned from rest with its policy, one MPC replan, or a `Failure`.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, push_model
+from cito_ros.execution.mpc import servo_gains
+from cito_ros.execution.policy import Policy
+from cito_ros.planner import push_limits
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.results import Status
+from cito_ros.settings import Settings
+
+
+def warm_up(settings: Settings) -> None:
+    """What a planning process pays for once: the imports, the push reach and the steady push reach (every
+    plan's reach zone: 1.4 s, which the first plan paid before) of the configured scene."""
+    posed = build_problem(settings, PushRequest(settings.node.default_contact_model))
+    push_limits.steady_reach_m(posed.scene, posed.initial_state)
+
+
+def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
+    """The planner's settings for the executor's pushes: executor.plan_iterations within the time left (at most
+    plan_time_limit_s), and a plan checked with the controller that will run it, the executor's servo, in the model
+    and in the worlds of executor.world_*_scales (so that a push whose outcome hangs on the cube's friction and mass
+    is not taken). Its first script is made with the servo, the next with the planner's stiff gains (gain_scale 1 /
+    servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes."""
+    executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
+    kp, kd = servo_gains(settings)
+    return settings.with_overrides({
+        "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
+        "solver.iteration_budget": executor.plan_iterations,
+        "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(), "tracking.feed_forward": True,
+        "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
+        "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
+        "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],
+        "stages.scripted.variants.gain_scale": [script.gain_scale / executor.servo_gain_scale, *variants.gain_scale],
+        "tracking.world_friction_scales": list(executor.world_friction_scales),
+        "tracking.world_mass_scales": list(executor.world_mass_scales)})
+
+
+def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
+    """A job's outcome (blocking; in this process or another): a push planned from rest (plan_push from the
+    measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there."""
+    model = push_model(settings, goal)
+    if job.kind == "replan":
+        return model.replan(job.now_s, job.state, job.running, settings.executor.replan_budget_s)
+    (x, y), yaw = job.object_pose
+    request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=np.array(goal.target_position_m),
+                          target_yaw_rad=goal.target_yaw_rad, scene=goal.scene, object_pose=((x, y), yaw))
+    try:
+        result = plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
+                           target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
+                           settings=executor_plan_settings(settings, job.time_left_s))
+        start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
+                              request).initial_state
+    except ValueError as error:
+        return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
+    if result.status is Status.NUMERICAL_ERROR:
+        return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
+    return model.policy(job.now_s, start, result.knot_torques_Nm)
+
+
+def work_in_line(executor: Executor, now_s: float) -> Work | None:
+    """The executor's job, computed and accepted in line (blocking): for a caller whose clock stands still while
+    it computes (cito_ros.execution.episode, the tests)."""
+    job = executor.job(now_s)
+    if job is None:
+        return None
+    began = time.perf_counter()
+    outcome = compute(executor.settings, executor.goal, job)
+    return executor.accept(job, outcome, time.perf_counter() - began)
