@@ -69,6 +69,11 @@ class StateEstimator:
     def has_pose(self) -> bool:
         return bool(self._poses)
 
+    @property
+    def last_pose(self) -> tuple[float, float, float, float]:
+        """The latest pose as measured: stamp, x, y and (unwrapped) yaw."""
+        return self._poses[-1]
+
     def object_motion(self, window: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """The last pose (stamp, x, y, yaw) and the velocity (vx, vy, yaw rate) fitted through the last `window`
         poses (default: the state's window)."""

@@ -200,10 +200,11 @@ class Executor:
     def _off_path_m(self) -> float:
         """How far the cube's last measured position is from where the running push's reference has it at that
         pose's instant (before the push: its start)."""
-        last, _, stamp = self.estimator.object_motion()
+        stamp, x, y, _ = self.estimator.last_pose  # the pose itself: no line fitted through the last few
         reference = self.policy.reference
         step = int(np.clip(round((stamp - self.policy.start_s) / self.policy.timestep_s), 0, len(reference) - 1))
-        return float(np.hypot(*(last[1:3] - self.model.scene.object_qpos(reference[step])[:2])))
+        planned = self.model.scene.object_qpos(reference[step])
+        return math.hypot(x - planned[0], y - planned[1])
 
     def _succeeded(self, position_m: float, orientation_rad: float, after: str) -> bool:
         """Whether the cube at rest is within the task's tolerances; if so, the execution ends as succeeded."""
