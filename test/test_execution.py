@@ -253,7 +253,8 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     no_closer = ending_at(executor, executor.policy, *job.object_pose)  # the cube predicted to stay where it is
     assert executor.accept(job, no_closer, 0.5) is None
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and "would leave it" in executor.message
-    assert executor.pushes == 1 and executor.phase is Phase.DONE
+    assert executor.pushes == 1 and executor.phase is Phase.DONE and executor.cause == "no_closer_push"
+    assert executor.sturdy_pushes == [False]  # a 0.01 mm tolerance: in no world does the plan reach the goal
 
 
 def ending_at(executor: Executor, policy: Policy, position_m, yaw_rad: float) -> Policy:
@@ -344,6 +345,7 @@ def test_a_cube_pushed_past_the_goal_ends_the_execution_as_not_achieved_without_
     assert isinstance(outcome, Failure) and "behind the object's pushed face" in outcome.message
     assert executor.accept(overshot, outcome, 0.01) is None
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and "6.0 cm behind" in executor.message
+    assert executor.cause == "no_push_from_here"
 
 
 def test_a_cube_seen_tipped_past_its_edge_ends_the_execution_with_the_arm_held(settings):
@@ -359,6 +361,7 @@ def test_a_cube_seen_tipped_past_its_edge_ends_the_execution_with_the_arm_held(s
         executor.command(world.time_s)
         assert (executor.phase is Phase.DONE) is ends, executor.message
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and "tipped over (its top 60 degrees" in executor.message
+    assert executor.cause == "tipped"
     np.testing.assert_array_equal(executor._hold_q, q)
 
 
@@ -381,8 +384,29 @@ def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_and_the_pushes
                 "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped, "pushes_cut": 2 * tipped}
 
     summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False), record("open_loop", False)])
+    assert "the first push planned sturdy" not in closed_loop.markdown(summary)  # not recorded (through the nodes)
     assert summary["zones"]["steady"]["w"]["closed_loop"]["tipped"] == 1
     assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop, inside the " \
         "steady reach." in closed_loop.markdown(summary)
     assert "Pushes cut short with the cube off their path (executor.off_path_m): 2, in 1 closed-loop episodes." in \
         closed_loop.markdown(summary)
+
+
+def test_the_closed_loop_report_splits_the_successes_by_the_first_push_s_sturdiness_and_names_the_misses_causes():
+    def record(success: bool, sturdy: bool | None, cause: str, margin_m: float = 0.05) -> dict:
+        return {"world": "w", "mode": "closed_loop", "steady_reach_margin_m": margin_m, "success": success,
+                "success_tight": success, "position_error_m": 0.01, "max_joint_speed_ratio": 0.9, "pushes": 1,
+                "replans": 0, "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": False,
+                "pushes_cut": 0, "first_push_sturdy": sturdy, "cause": cause}
+
+    summary = closed_loop.report([
+        record(True, True, "succeeded"), record(False, True, "pushes_spent"), record(True, False, "succeeded"),
+        record(False, False, "no_closer_push"), record(False, False, "no_closer_push"),
+        record(False, None, "invalid_request"), record(False, False, "tipped", -0.01)])
+    steady = summary["explained"]["steady"]
+    assert steady["sturdy"] == {"sturdy": {"episodes": 2, "success": 1}, "not_sturdy": {"episodes": 3, "success": 1}}
+    assert steady["miss_causes"] == {"no_closer_push": 2, "pushes_spent": 1, "invalid_request": 1}
+    assert summary["explained"]["strike"]["miss_causes"] == {"tipped": 1}
+    assert "Closed loop inside the steady reach: the first push planned sturdy (PlanResult.sturdy) in 2 episodes, 1 " \
+        "of them successes; not sturdy in 3, 1 successes. The misses by the executor's cause: no closer push 2, " \
+        "pushes spent 1, invalid request 1." in closed_loop.markdown(summary)

@@ -6,8 +6,11 @@ import math
 import numpy as np
 import pytest
 
+from cito_ros.model.scene import start_configuration
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.candidates import Executed, execute
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.results import tolerance_ratio
 from cito_ros.planner.scripted import scripted_torques
 from cito_ros.planner.stages import physical_twin
 
@@ -57,3 +60,21 @@ def test_a_plan_is_tracked_in_each_scaled_world_and_the_cube_ends_elsewhere_ther
 def test_scales_that_do_not_pair_up_are_refused(settings):
     with pytest.raises(ValueError, match="must pair up"):
         with_worlds(settings, (1.0, 0.5), (1.0,))
+
+
+def test_a_plan_says_whether_the_controller_brings_the_cube_to_the_goal_in_every_world_it_was_checked_in(settings):
+    """PlanResult.sturdy: the returned plan tracked to within the tolerances in the model and each scaled world,
+    as executing it there again finds; never sturdy where no other world was asked for."""
+    push = dict(start_q=start_configuration(7), target_position_m=np.array([1.09, 0.03]), target_yaw_rad=0.1)
+    assert not plan_push("vscm", settings=settings, **push).sturdy
+    for tolerance_m in (0.02, 1e-5):  # a tolerance no plan meets: not sturdy
+        checked = with_worlds(settings).with_overrides({"task.success_position_error_m": tolerance_m,
+                                                        "solver.iteration_budget": 6})
+        result = plan_push("vscm", settings=checked, **push)
+        horizon = checked.with_overrides({"horizon_s": float(result.knot_time_s[-1])})
+        problem = build_problem(horizon, PushRequest("vscm", **push)).problem
+        again = execute(physical_twin(problem, problem.cost), result.knot_torques_Nm, checked.tracking)
+        assert len(again.world_tracked_errors) == 3
+        assert result.sturdy == all(tolerance_ratio(*errors, checked.task) < 1.0
+                                    for errors in again.world_tracked_errors)
+        assert result.sturdy == (tolerance_m == 0.02), again.world_tracked_errors

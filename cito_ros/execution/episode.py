@@ -52,6 +52,8 @@ class Episode:
     replan_compute_s: float          # median
     plan_compute_s: float            # the first plan's
     pushes_cut: int = 0              # pushes cut short with the cube off their path (executor.off_path_m)
+    first_push_sturdy: bool | None = None  # its plan reached the goal in the executor's worlds (None: no push)
+    cause: str = ""                  # closed loop: why the executor ended (Executor.cause)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -86,7 +88,8 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
     seconds = executor.replan_seconds
     return _episode("closed_loop", settings, position, orientation, at_rest, watch, duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
-                    float(np.median(seconds)) if seconds else math.nan, plan_compute_s, executor.pushes_cut)
+                    float(np.median(seconds)) if seconds else math.nan, plan_compute_s, executor.pushes_cut,
+                    executor.sturdy_pushes[0] if executor.sturdy_pushes else None, executor.cause)
 
 
 def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,

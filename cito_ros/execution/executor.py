@@ -111,6 +111,8 @@ class Executor:
         self.started_s: float | None = None
         self.pushes = 0
         self.pushes_cut = 0                    # pushes cut short with the cube off their path (executor.off_path_m)
+        self.sturdy_pushes: list[bool] = []    # per push made: whether its plan was sturdy (Policy.sturdy)
+        self.cause = ""                        # why it ended, finer than `ending` (set with it: _end)
         self.replan_seconds: list[float] = []  # every replan's compute time, taken or not
         self.replans_taken = 0                 # the replans that improved on the running plan and took its place
         self._planner_free_s = -math.inf
@@ -165,7 +167,7 @@ class Executor:
         if tipped_over(self.model.scene, self.estimator.tilt_rad):
             return self._end(Ending.TASK_NOT_ACHIEVED, f"the cube has tipped over (its top "
                                                        f"{math.degrees(self.estimator.tilt_rad):.0f} degrees from "
-                                                       f"upright): the arm is held where it is", joints.q)
+                                                       f"upright): the arm is held where it is", joints.q, "tipped")
         if now_s - self.started_s > self.time_limit_s:
             return self._end(Ending.TIME_LIMIT, f"the {self.time_limit_s:g} s time limit ran out", joints.q)
         if self._pending is not None and now_s >= self._pending.effective_s:
@@ -186,7 +188,7 @@ class Executor:
             if self.pushes >= self.settings.executor.max_pushes:
                 return self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                            f"{100 * position:.2f} cm and {orientation:.3f} rad from "
-                                                           f"the goal", None)
+                                                           f"the goal", None, "pushes_spent")
             # another push, planned from the start pose (from beside the cube a push starts against it)
             self.phase = Phase.RETREATING
             self._retreat = Retreat.between(now_s, joints.q, self._home_q, self.model.scene.velocity_limit,
@@ -214,8 +216,10 @@ class Executor:
             return True
         return False
 
-    def _end(self, ending: Ending, message: str, hold_q: np.ndarray | None) -> None:
+    def _end(self, ending: Ending, message: str, hold_q: np.ndarray | None, cause: str | None = None) -> None:
+        """The execution ends; `cause` says why where the ending alone does not (default: the ending's value)."""
         self.phase, self.ending, self.message, self._pending = Phase.DONE, ending, message, None
+        self.cause = cause or ending.value
         if hold_q is not None:
             self._hold_q = hold_q.copy()
 
@@ -274,10 +278,10 @@ class Executor:
             if self.phase is not expected:
                 return None
             if isinstance(outcome, Failure):
-                ending = outcome.ending
+                ending, cause = outcome.ending, None
                 if ending is Ending.INVALID_REQUEST and self.pushes:  # the goal was posed; no next push reaches it
-                    ending = Ending.TASK_NOT_ACHIEVED
-                self._end(ending, outcome.message, None if self._joints is None else self._joints.q)
+                    ending, cause = Ending.TASK_NOT_ACHIEVED, "no_push_from_here"
+                self._end(ending, outcome.message, None if self._joints is None else self._joints.q, cause)
                 return None
             if outcome is None:
                 return None
@@ -295,11 +299,12 @@ class Executor:
                                                         f"goal, and the best push found from the near face would "
                                                         f"leave it {100 * predicted[0]:.2f} cm and "
                                                         f"{predicted[1]:.3f} rad off",
-                              None if self._joints is None else self._joints.q)
+                              None if self._joints is None else self._joints.q, "no_closer_push")
                     return None
             effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start
             if job.kind == "plan":  # a fresh push starts from rest when it is ready: its time 0 is then
                 outcome, self.pushes = dataclasses.replace(outcome, start_s=effective), self.pushes + 1
+                self.sturdy_pushes.append(outcome.sturdy)
             else:
                 self.replans_taken += 1
             self._pending = Work(outcome, effective, elapsed_s, job.kind)

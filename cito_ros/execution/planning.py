@@ -4,6 +4,7 @@ outcome: a push planned from rest with its policy, one MPC replan, or a `Failure
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -64,7 +65,7 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
-    return model.policy(job.now_s, start, result.knot_torques_Nm)
+    return dataclasses.replace(model.policy(job.now_s, start, result.knot_torques_Nm), sturdy=result.sturdy)
 
 
 def work_in_line(executor: Executor, now_s: float) -> Work | None:

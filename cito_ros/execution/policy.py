@@ -31,6 +31,8 @@ class Policy:
     torques_Nm: np.ndarray       # (N, 7) u_ref per knot
     gains: np.ndarray            # (N, 7, nx) K per knot, nx = 2 nv
     reference: np.ndarray        # (T + 1, nstate) x_ref at every step of the planner's model, T = N * steps
+    sturdy: bool = False         # planned to reach the goal in the model and in the executor's worlds (PlanResult.
+                                 # sturdy); a replan is not checked there
 
     @property
     def end_s(self) -> float:

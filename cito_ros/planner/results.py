@@ -235,6 +235,8 @@ class PlanResult:
     stages: tuple[StageRecord, ...]
     derivative_info: dict[str, int]
     scene: Scene                     # where it was planned: the object's start pose, the geometry to draw
+    sturdy: bool = False             # tracked to within the task's tolerances in the model and in every world of
+                                     # tracking.world_*_scales, as the search judged it (False: other worlds not asked)
 
     @property
     def executed_motion(self) -> Trajectory:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections import Counter
 from dataclasses import replace
 from typing import Any
 
@@ -104,9 +105,19 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                     "replans": _stats([float(r["replans"]) for r in rows])}
     closed = [r for r in records if r["mode"] == "closed_loop"]
     cut = [r["pushes_cut"] for r in closed if "pushes_cut" in r]  # not counted through the nodes
+    explained = {}  # per zone: successes by whether the first push was sturdy, and the misses by their cause
+    for name in ZONES:
+        rows = [r for r in closed if zone(r["steady_reach_margin_m"]) == name and r.get("cause")]
+        if rows:
+            explained[name] = {
+                "sturdy": {kind: {"episodes": sum(r["first_push_sturdy"] is flag for r in rows),
+                                  "success": sum(r["success"] and r["first_push_sturdy"] is flag for r in rows)}
+                           for kind, flag in (("sturdy", True), ("not_sturdy", False))},
+                "miss_causes": dict(Counter(r["cause"] for r in rows if not r["success"]).most_common())}
     return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]),
             "replan_compute_s": _stats([r["replan_compute_s"] for r in closed]),
-            "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None}
+            "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None,
+            "explained": explained}
 
 
 def markdown(summary: dict[str, Any]) -> str:
@@ -145,6 +156,13 @@ def markdown(summary: dict[str, Any]) -> str:
         cut = summary["pushes_cut"]
         lines.append(f"Pushes cut short with the cube off their path (executor.off_path_m): {cut['pushes']}, in "
                      f"{cut['episodes']} closed-loop episodes.")
+    for name, e in summary.get("explained", {}).items():
+        sturdy, fragile = e["sturdy"]["sturdy"], e["sturdy"]["not_sturdy"]
+        causes = ", ".join(f"{cause.replace('_', ' ')} {n}" for cause, n in e["miss_causes"].items())
+        lines.append(f"Closed loop {zone_names[name]}: the first push planned sturdy (PlanResult.sturdy) in "
+                     f"{sturdy['episodes']} episodes, {sturdy['success']} of them successes; not sturdy in "
+                     f"{fragile['episodes']}, {fragile['success']} successes. The misses by the executor's cause: "
+                     f"{causes or 'none'}.")
     rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
     if rate["median"] is not None:
         lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "
