@@ -384,7 +384,7 @@ def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_and_the_pushes
                 "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped, "pushes_cut": 2 * tipped}
 
     summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False), record("open_loop", False)])
-    assert "the first push planned sturdy" not in closed_loop.markdown(summary)  # not recorded (through the nodes)
+    assert "the first push planned sturdy" not in closed_loop.markdown(summary)  # records without the executor's cause
     assert summary["zones"]["steady"]["w"]["closed_loop"]["tipped"] == 1
     assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop, inside the " \
         "steady reach." in closed_loop.markdown(summary)

@@ -69,6 +69,7 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
                                           "max_joint_speed_ratio", "ending", "message", "phases")}
         assert closed["success"], verdict
         assert closed["max_joint_speed_ratio"] <= 1.0, verdict
+        assert closed["cause"] == "succeeded" and closed["pushes"] >= 1, verdict
         assert node.poll() is None
     finally:
         operator.close()

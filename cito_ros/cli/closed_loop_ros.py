@@ -74,6 +74,7 @@ def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, mode
             "max_joint_speed_ratio": float(np.max(outcome.max_joint_speed / scene.velocity_limit)),
             "max_tilt_rad": outcome.max_tilt_rad, "tipped": not upright,
             "duration_s": outcome.round_trip_s, "ending": f"status {result.status}", "message": result.message,
-            "pushes": math.nan, "replans": int(result.replans), "replan_rate_hz": rate,
+            "pushes": int(result.pushes), "first_push_sturdy": bool(result.first_push_sturdy) if result.pushes else None,
+            "cause": result.cause, "replans": int(result.replans), "replan_rate_hz": rate,
             "replan_compute_s": 1.0 / rate, "plan_compute_s": math.nan, "phases": list(outcome.phases),
             "bag_path": result.bag_path}

@@ -1,6 +1,6 @@
 """`cito-bench closed-loop`: pushes executed open loop and closed loop on simulated robots whose worlds are not
-the planner's model. ROS-free: the executor's own code in lock step with the world, no DDS (a run through
-the nodes, `--ros`, is not built yet).
+the planner's model. ROS-free: the executor's own code in lock step with the world, no DDS (through the nodes,
+`--ros`: cito_ros.cli.closed_loop_ros).
 
 Goals: the `targets` distribution (seeded; cito_ros.studies.targets), judged apart by zone: inside the steady
 push reach, and beyond it (reached only by a strike: the near-reach share, best effort). Worlds (WORLDS): the
@@ -124,7 +124,7 @@ def markdown(summary: dict[str, Any]) -> str:
     def cm(entry) -> str:
         return "-" if entry["median"] is None else f"{100 * entry['median']:.2f} / {100 * entry['p90']:.2f}"
 
-    def whole(entry) -> str:  # a count's median ("-": not counted, as through the nodes)
+    def whole(entry) -> str:  # a count's median ("-": not counted)
         return "-" if entry["median"] is None else f"{entry['median']:.0f}"
 
     lines = []
