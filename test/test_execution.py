@@ -15,7 +15,6 @@ from cito_ros.execution.planning import compute, work_in_line
 from cito_ros.execution.policy import Policy, bias_torques, state_difference
 from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld
 from cito_ros.model.scene import start_configuration
-from cito_ros.studies import closed_loop
 
 GOAL = ExecuteGoal((1.09, 0.03), 0.1, "vscm")  # 10 cm from q0(beta = 7), inside the steady push reach
 
@@ -375,38 +374,3 @@ def test_an_episode_with_a_cube_that_fell_onto_its_side_is_no_success(settings):
     watch = Watch(world)
     assert watch.max_tilt_rad == pytest.approx(math.pi / 2) and not watch.upright
     assert at_goal(settings.task, True, 0.001, 0.01) and not at_goal(settings.task, True, 0.001, 0.01, upright=False)
-
-
-def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_and_the_pushes_cut_short():
-    def record(mode: str, tipped: bool) -> dict:
-        return {"world": "w", "mode": mode, "steady_reach_margin_m": 0.05, "success": False, "success_tight": False,
-                "position_error_m": 0.05, "max_joint_speed_ratio": 0.9, "pushes": 1, "replans": 0,
-                "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped, "pushes_cut": 2 * tipped}
-
-    summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False), record("open_loop", False)])
-    assert "the first push planned sturdy" not in closed_loop.markdown(summary)  # records without the executor's cause
-    assert summary["zones"]["steady"]["w"]["closed_loop"]["tipped"] == 1
-    assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop, inside the " \
-        "steady reach." in closed_loop.markdown(summary)
-    assert "Pushes cut short with the cube off their path (executor.off_path_m): 2, in 1 closed-loop episodes." in \
-        closed_loop.markdown(summary)
-
-
-def test_the_closed_loop_report_splits_the_successes_by_the_first_push_s_sturdiness_and_names_the_misses_causes():
-    def record(success: bool, sturdy: bool | None, cause: str, margin_m: float = 0.05) -> dict:
-        return {"world": "w", "mode": "closed_loop", "steady_reach_margin_m": margin_m, "success": success,
-                "success_tight": success, "position_error_m": 0.01, "max_joint_speed_ratio": 0.9, "pushes": 1,
-                "replans": 0, "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": False,
-                "pushes_cut": 0, "first_push_sturdy": sturdy, "cause": cause}
-
-    summary = closed_loop.report([
-        record(True, True, "succeeded"), record(False, True, "pushes_spent"), record(True, False, "succeeded"),
-        record(False, False, "no_closer_push"), record(False, False, "no_closer_push"),
-        record(False, None, "invalid_request"), record(False, False, "tipped", -0.01)])
-    steady = summary["explained"]["steady"]
-    assert steady["sturdy"] == {"sturdy": {"episodes": 2, "success": 1}, "not_sturdy": {"episodes": 3, "success": 1}}
-    assert steady["miss_causes"] == {"no_closer_push": 2, "pushes_spent": 1, "invalid_request": 1}
-    assert summary["explained"]["strike"]["miss_causes"] == {"tipped": 1}
-    assert "Closed loop inside the steady reach: the first push planned sturdy (PlanResult.sturdy) in 2 episodes, 1 " \
-        "of them successes; not sturdy in 3, 1 successes. The misses by the executor's cause: no closer push 2, " \
-        "pushes spent 1, invalid request 1." in closed_loop.markdown(summary)
