@@ -89,7 +89,7 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
     return _episode("closed_loop", settings, position, orientation, at_rest, watch, duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
                     float(np.median(seconds)) if seconds else math.nan, plan_compute_s, executor.pushes_cut,
-                    executor.sturdy_pushes[0] if executor.sturdy_pushes else None, executor.cause)
+                    executor.first_push_sturdy, executor.cause)
 
 
 def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,

@@ -311,6 +311,11 @@ class Executor:
             return self._pending
 
     @property
+    def first_push_sturdy(self) -> bool | None:
+        """Whether the first push's plan was sturdy (None: no push made)."""
+        return self.sturdy_pushes[0] if self.sturdy_pushes else None
+
+    @property
     def replans(self) -> int:
         return len(self.replan_seconds)
 

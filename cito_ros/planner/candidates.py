@@ -62,12 +62,16 @@ class Executed:
         sturdy = not settings.tracking.reference_offsets or all(
             error < task.success_position_error_m for error in (self.tracked_position_error_m,
                                                                  self.offset_tracked_error_m))
-        worst_world = max((results.tolerance_ratio(position, orientation, task)
-                           for position, orientation in self.world_tracked_errors), default=0.0)
+        worst_world = self.worst_world(task)
         sturdy = sturdy and worst_world < 1.0
         return (beyond_limits, not at_goal, not trackable, not sturdy, worst_world,
                 self.position_error_m / task.success_position_error_m
                 + self.orientation_error_rad / task.success_orientation_error_rad)
+
+    def worst_world(self, task) -> float:
+        """The largest tolerance_ratio over world_tracked_errors (0: none tracked): below 1, sturdy in them all."""
+        return max((results.tolerance_ratio(position, orientation, task)
+                    for position, orientation in self.world_tracked_errors), default=0.0)
 
     @staticmethod
     def succeeds(rank: tuple) -> bool:

@@ -21,7 +21,7 @@ from cito_ros.planner import push_limits, tracking
 from cito_ros.planner.builder import PlanningProblem, PushRequest, build_problem
 from cito_ros.planner.candidates import Motions
 from cito_ros.planner.physical import solve_physical
-from cito_ros.planner.results import IterationLog, Metrics, PlanResult, Status, succeeds, tolerance_ratio
+from cito_ros.planner.results import IterationLog, Metrics, PlanResult, Status, succeeds
 from cito_ros.planner.stages import Outcome, solve_paper
 from cito_ros.settings import Settings, load_settings
 
@@ -144,6 +144,6 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         stages=outcome.stages,
         derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
         scene=discovery.scene,
-        sturdy=bool(outcome.executed is not None and outcome.executed.world_tracked_errors and all(
-            tolerance_ratio(*errors, settings.task) < 1.0 for errors in outcome.executed.world_tracked_errors)),
+        sturdy=bool(outcome.executed is not None and outcome.executed.world_tracked_errors
+                    and outcome.executed.worst_world(settings.task) < 1.0),
     )

@@ -290,7 +290,7 @@ class ExecutorNode(Node):
             final_object_pose=self._object_pose(executor, now), position_error_m=position,
             orientation_error_rad=orientation, replans=executor.replans, replan_rate_hz=rate if math.isfinite(rate)
             else 0.0, bag_path=bag_path, pushes=executor.pushes,
-            first_push_sturdy=bool(executor.sturdy_pushes and executor.sturdy_pushes[0]), cause=executor.cause)
+            first_push_sturdy=bool(executor.first_push_sturdy), cause=executor.cause)
 
     # ------------------------------------------------------------------ shutdown
 
