@@ -265,7 +265,7 @@ class Executor:
                 return None
             return Job("plan" if self.phase is Phase.PLANNING else "replan", now_s, state, self._joints.q.copy(),
                        self.object_pose(now_s), self.time_limit_s - (now_s - self.started_s),
-                       self.policy, self._push_end_s)
+                       self.policy, self._push_end_s, executor.max_pushes - self.pushes - 1)
 
     def accept(self, job: Job, outcome: Policy | Failure | None, elapsed_s: float) -> Work | None:
         """Take a job's outcome, computed in elapsed_s (on the robot's clock, from job.now_s): a plan that takes
@@ -337,6 +337,7 @@ class Job:
     time_left_s: float
     running: Policy | None                   # replan: the policy that runs (its torques warm-start the replan)
     push_end_s: float                        # replan: where the push ends
+    pushes_left: int = 0                     # plan: the pushes the executor may make after this one
 
 
 @dataclass(frozen=True)

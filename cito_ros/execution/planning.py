@@ -5,6 +5,7 @@ outcome: a push planned from rest with its policy, one MPC replan, or a `Failure
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -15,7 +16,7 @@ from cito_ros.execution.policy import Policy
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import Status
+from cito_ros.planner.results import PlanResult, Status
 from cito_ros.settings import Settings
 
 
@@ -26,8 +27,8 @@ def warm_up(settings: Settings) -> None:
     push_limits.steady_reach_m(posed.scene, posed.initial_state)
 
 
-def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
-    """The planner's settings for the executor's pushes: executor.plan_iterations within the time left (at most
+def executor_plan_settings(settings: Settings, time_left_s: float, iterations: int) -> Settings:
+    """The planner's settings for the executor's pushes: `iterations` within the time left (at most
     plan_time_limit_s), and a plan checked with the controller that will run it, the executor's servo, in the model
     and in the worlds of executor.world_*_scales (so that a push whose outcome hangs on the cube's friction and mass
     is not taken). Its first script is made with the servo, the next with the planner's stiff gains (gain_scale 1 /
@@ -36,7 +37,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
     kp, kd = servo_gains(settings)
     return settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
-        "solver.iteration_budget": executor.plan_iterations,
+        "solver.iteration_budget": iterations,
         "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(), "tracking.feed_forward": True,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
@@ -48,17 +49,22 @@ def executor_plan_settings(settings: Settings, time_left_s: float) -> Settings:
 
 def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
     """A job's outcome (blocking; in this process or another): a push planned from rest (plan_push from the
-    measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there."""
+    measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there.
+    A push with pushes left after it is planned to the goal within executor.direct_iterations (a sturdy plan there
+    takes 3-19), and where that plan is not sturdy, again to executor.waypoint_fraction of the way, made if sturdy:
+    a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended."""
     model = push_model(settings, goal)
     if job.kind == "replan":
         return model.replan(job.now_s, job.state, job.running, settings.executor.replan_budget_s)
-    (x, y), yaw = job.object_pose
-    request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=np.array(goal.target_position_m),
-                          target_yaw_rad=goal.target_yaw_rad, scene=goal.scene, object_pose=((x, y), yaw))
     try:
-        result = plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
-                           target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
-                           settings=executor_plan_settings(settings, job.time_left_s))
+        executor = settings.executor
+        sequence = job.pushes_left > 0 and executor.waypoint_fraction > 0
+        request, result = _plan_to(settings, goal, job, 1.0,
+                                   executor.direct_iterations if sequence else executor.plan_iterations)
+        if sequence and not result.sturdy:
+            shorter = _plan_to(settings, goal, job, executor.waypoint_fraction, executor.plan_iterations)
+            if shorter[1].sturdy:
+                request, result = shorter
         start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
                               request).initial_state
     except ValueError as error:
@@ -66,6 +72,23 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
     return dataclasses.replace(model.policy(job.now_s, start, result.knot_torques_Nm), sturdy=result.sturdy)
+
+
+def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, iterations: int
+             ) -> tuple[PushRequest, PlanResult]:
+    """A push from the job's measured arm and cube to `fraction` of the way to the goal, in position and in yaw
+    (the shorter way round), planned within `iterations`; ValueError where none can be planned."""
+    (x, y), yaw = job.object_pose
+    position, target_yaw = np.array(goal.target_position_m), goal.target_yaw_rad
+    if fraction < 1.0:
+        position = np.array([x, y]) + fraction * (position - np.array([x, y]))
+        target_yaw = yaw + fraction * math.remainder(target_yaw - yaw, 2 * math.pi)
+    request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=position, target_yaw_rad=target_yaw,
+                          scene=goal.scene, object_pose=((x, y), yaw))
+    return request, plan_push(request.contact_model, start_q=request.start_q,
+                              target_position_m=request.target_position_m, target_yaw_rad=request.target_yaw_rad,
+                              scene=request.scene, object_pose=request.object_pose,
+                              settings=executor_plan_settings(settings, job.time_left_s, iterations))
 
 
 def work_in_line(executor: Executor, now_s: float) -> Work | None:

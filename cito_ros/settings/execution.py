@@ -72,6 +72,11 @@ class ExecutorSettings:
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
+    waypoint_fraction: float = setting("a push whose plan to the goal is not sturdy (PlanResult.sturdy), with pushes "
+                                       "left after it, is planned again to this fraction of the way there, and that "
+                                       "plan taken if it is sturdy (0: never)", minimum=0.0)
+    direct_iterations: int = setting("the planner's iterations for that plan to the goal, where a waypoint may "
+                                     "follow (with none, plan_iterations)", minimum=1)
     off_path_m: float = setting("a push is cut short, the arm held where it is, once the measured cube is this far "
                                 "from where the push's reference has it at that instant: the rest of it would push "
                                 "the cube on astray; the next push starts from where it comes to rest (m)",
@@ -99,3 +104,8 @@ class ExecutorSettings:
                                    "by then is taken, the same however loaded the machine is)", minimum=1)
     plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)
     time_limit_s: float = setting("an execution's wall-clock limit where the goal gives none (s)", positive=True)
+
+    def check(self, path: str) -> None:
+        if not self.waypoint_fraction < 1.0:
+            raise ValueError(f"{path}.waypoint_fraction must be below 1 (a fraction of the way to the goal; 0: no "
+                             f"waypoints), got {self.waypoint_fraction}")
