@@ -227,28 +227,39 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
         settings):
     """Judged against a goal tolerance no push meets, the first push misses: the arm goes back to where the
     execution started, along a path within the retreat's speed limit, the cube left where it came to rest, and
-    the next push is planned from there; a next push the model predicts would leave the cube no closer is not
-    made, and the execution ends there."""
+    the next push is planned from there while it goes, and made no sooner than it is there; a next push the model
+    predicts would leave the cube no closer is not made, and the execution ends there."""
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
     home = start_configuration(7)
     executor, world = started(strict)
-    retreat_began = None
-    while executor.pushes < 2 and world.time_s < 25:
+    while executor.phase is not Phase.RETREATING and world.time_s < 25:
         work_in_line(executor, world.time_s)
         world.step(executor.command(world.time_s))
         deliver(executor, world)
-        if executor.phase is Phase.RETREATING and retreat_began is None:
-            retreat_began, cube_before = world.time_s, world.true_object_pose()[0]
-            limit = strict.executor.retreat_speed_fraction * world.scene.velocity_limit
-            assert np.all(np.abs(executor._retreat.at(executor._retreat.start_s + 0.5 * (
-                executor._retreat.end_s - executor._retreat.start_s))[1]) <= limit + 1e-9)
-        if executor.phase is Phase.PLANNING and retreat_began is not None:
-            break
-    assert retreat_began is not None and executor.pushes == 1
+    assert executor.phase is Phase.RETREATING and executor.pushes == 1
+    cube_before, retreat = world.true_object_pose()[0], executor._retreat
+    limit = strict.executor.retreat_speed_fraction * world.scene.velocity_limit
+    assert np.all(np.abs(retreat.at(0.5 * (retreat.start_s + retreat.end_s))[1]) <= limit + 1e-9)
+    job = executor.job(world.time_s)  # the next push, planned as the arm retreats: from where it will be
+    assert job is not None and job.kind == "plan" and np.array_equal(job.q, home)
+    closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad)
+    next_push = executor.accept(job, dataclasses.replace(closer, start_s=world.time_s), 0.5)
+    assert next_push.effective_s == retreat.end_s and executor.pushes == 2
+    while executor.phase is Phase.RETREATING:
+        assert executor.policy is not next_push.policy
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    executor.command(world.time_s)
+    assert executor.policy is next_push.policy and world.time_s >= retreat.end_s  # made once the arm is back
     assert np.abs(world.joints().q - home).max() < 0.05  # back where it started (the servo's error)
     assert np.linalg.norm(world.true_object_pose()[0][:2] - cube_before[:2]) < 0.003  # the cube not dragged along
+    # the same, with a next push that would leave the cube no closer
+    executor, world = started(strict)
+    while executor.phase is not Phase.RETREATING and world.time_s < 25:
+        work_in_line(executor, world.time_s)
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
     job = executor.job(world.time_s)
-    assert job is not None and job.kind == "plan" and np.abs(job.q - home).max() < 0.05
     no_closer = ending_at(executor, executor.policy, *job.object_pose)  # the cube predicted to stay where it is
     assert executor.accept(job, no_closer, 0.5) is None
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and "would leave it" in executor.message

@@ -12,7 +12,8 @@ Phases: `planning` (the arm held while a push is planned), `pushing` (the policy
 held at the push's end, or where it is once the cube is executor.off_path_m off the push's path, until the cube has
 come to rest; then the push is judged by the camera: at the goal, done; else, while pushes and time are left,
 `retreating`: the arm goes back along a minimum-jerk path to where the execution started, and a new push is planned
-from there, made only if the model predicts it brings the cube closer (both errors against their tolerances)),
+from there meanwhile, made once the arm is there and only if the model predicts it brings the cube closer (both
+errors against their tolerances)),
 `done`. An execution begun with the arm against the cube (where the last one ended or was cancelled) begins
 `retreating` to the start pose of settings.beta. Measurements older than executor.stale_after_s, a cancel, the time
 limit, a cube seen tipped past its edge or a push that cannot be planned end the execution with the arm held where
@@ -170,7 +171,15 @@ class Executor:
                                                        f"upright): the arm is held where it is", joints.q, "tipped")
         if now_s - self.started_s > self.time_limit_s:
             return self._end(Ending.TIME_LIMIT, f"the {self.time_limit_s:g} s time limit ran out", joints.q)
-        if self._pending is not None and now_s >= self._pending.effective_s:
+        if self.phase is Phase.RETREATING and now_s >= self._retreat.end_s:
+            self.phase, self._hold_q = Phase.PLANNING, self._home_q.copy()
+            # judged again with the arm away: the judgement after the push can disagree (docs/ros.md)
+            if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s and \
+                    self._succeeded(*self.errors(now_s), ", once the arm drew back"):
+                return
+        # a push planned during the retreat waits for its end
+        if self._pending is not None and now_s >= self._pending.effective_s and \
+                (self._pending.kind == "replan" or self.phase is Phase.PLANNING):
             work, self._pending = self._pending, None
             self.policy = work.policy
             if work.kind == "plan":
@@ -193,11 +202,6 @@ class Executor:
             self.phase = Phase.RETREATING
             self._retreat = Retreat.between(now_s, joints.q, self._home_q, self.model.scene.velocity_limit,
                                             self.settings.executor)
-        if self.phase is Phase.RETREATING and now_s >= self._retreat.end_s:
-            self.phase, self._hold_q = Phase.PLANNING, self._home_q.copy()
-            # judged again with the arm away: the judgement after the push can disagree (docs/ros.md)
-            if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
-                self._succeeded(*self.errors(now_s), ", once the arm drew back")
 
     def _off_path_m(self) -> float:
         """How far the cube's last measured position is from where the running push's reference has it at that
@@ -254,7 +258,9 @@ class Executor:
             if self.phase is Phase.PUSHING and now_s + executor.replan_budget_s + executor.min_replan_knots * \
                     self.model.control_period_s >= self._push_end_s:
                 return None
-            if self.phase is not Phase.PLANNING and not (self.phase is Phase.PUSHING and executor.replan):
+            # the next push is planned while the arm retreats, from where the retreat ends, once the cube is at rest
+            ahead = self.phase is Phase.RETREATING and self.estimator.object_speed_m_s() < executor.rest_speed_m_s
+            if self.phase is not Phase.PLANNING and not ahead and not (self.phase is Phase.PUSHING and executor.replan):
                 return None
             state = self.estimator.state(self._joints, now_s)
             back_q = self.model.draw_back_q(state) if self.phase is Phase.PLANNING and not self._retreat else None
@@ -263,9 +269,10 @@ class Executor:
                 self._retreat = Retreat.between(now_s, self._joints.q, back_q, self.model.scene.velocity_limit,
                                                 executor)
                 return None
-            return Job("plan" if self.phase is Phase.PLANNING else "replan", now_s, state, self._joints.q.copy(),
-                       self.object_pose(now_s), self.time_limit_s - (now_s - self.started_s),
-                       self.policy, self._push_end_s, executor.max_pushes - self.pushes - 1)
+            return Job("replan" if self.phase is Phase.PUSHING else "plan", now_s, state,
+                       (self._home_q if ahead else self._joints.q).copy(), self.object_pose(now_s),
+                       self.time_limit_s - (now_s - self.started_s), self.policy, self._push_end_s,
+                       executor.max_pushes - self.pushes - 1)
 
     def accept(self, job: Job, outcome: Policy | Failure | None, elapsed_s: float) -> Work | None:
         """Take a job's outcome, computed in elapsed_s (on the robot's clock, from job.now_s): a plan that takes
@@ -274,8 +281,8 @@ class Executor:
             self._planner_free_s = job.now_s + elapsed_s  # the planner was busy with it until then
             if job.kind == "replan":
                 self.replan_seconds.append(elapsed_s)
-            expected = Phase.PLANNING if job.kind == "plan" else Phase.PUSHING
-            if self.phase is not expected:
+            expected = (Phase.PLANNING, Phase.RETREATING) if job.kind == "plan" else (Phase.PUSHING,)
+            if self.phase not in expected:
                 return None
             if isinstance(outcome, Failure):
                 ending, cause = outcome.ending, None
@@ -302,6 +309,8 @@ class Executor:
                               None if self._joints is None else self._joints.q, "no_closer_push")
                     return None
             effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start
+            if self.phase is Phase.RETREATING:
+                effective = max(effective, self._retreat.end_s)
             if job.kind == "plan":  # a fresh push starts from rest when it is ready: its time 0 is then
                 outcome, self.pushes = dataclasses.replace(outcome, start_s=effective), self.pushes + 1
                 self.sturdy_pushes.append(outcome.sturdy)
