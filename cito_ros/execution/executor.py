@@ -107,7 +107,6 @@ class Executor:
         self._retreat: Retreat | None = None
         self._settle_since_s = math.nan
         self._joints: JointReading | None = None
-        self._previous_joints: JointReading | None = None  # the one before: the arm's measured acceleration
         self._pose_arrival_s = -math.inf
         self._joints_arrival_s = -math.inf
         self.started_s: float | None = None
@@ -123,7 +122,7 @@ class Executor:
 
     def on_joints(self, reading: JointReading, arrival_s: float | None = None) -> None:
         """A joint state, which arrived at arrival_s on the robot's clock (default: its stamp)."""
-        self._previous_joints, self._joints = self._joints, reading
+        self._joints = reading
         self._joints_arrival_s = reading.stamp_s if arrival_s is None else arrival_s
         if self.started_s is None:
             self.started_s = reading.stamp_s
@@ -156,11 +155,8 @@ class Executor:
             scene = self.model.scene
             bias = bias_torques(scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
             # kept within the speed limits ahead (a robot's limiter faults past them) and u + bias within the motors'
-            previous, measured = self._previous_joints, None
-            if previous is not None and joints.stamp_s > previous.stamp_s and np.all(np.isfinite(joints.effort)):
-                measured = ((joints.qdot - previous.qdot) / (joints.stamp_s - previous.stamp_s), joints.effort)
             return within_speed_limits(scene, self._data, u, joints.qdot, bias, SPEED_GUARD * scene.velocity_limit,
-                                       self.settings.executor.speed_horizon_s, measured) + bias
+                                       self.settings.executor.speed_horizon_s) + bias
 
     def _advance(self, now_s: float) -> None:
         joints = self._joints

@@ -88,8 +88,7 @@ def bias_torques(scene: Scene, data: mujoco.MjData, q: np.ndarray, qdot: np.ndar
 
 
 def within_speed_limits(scene: Scene, data: mujoco.MjData, u: np.ndarray, qdot: np.ndarray, bias: np.ndarray,
-                        speed_limit: np.ndarray, horizon_s: float, measured: tuple[np.ndarray, np.ndarray] | None = None
-                        ) -> np.ndarray:
+                        speed_limit: np.ndarray, horizon_s: float) -> np.ndarray:
     """u within the motors' torque limits (u + bias within +-torque_limit), changed only where it would take an arm
     joint moving at qdot past speed_limit within horizon_s.
 
@@ -98,20 +97,14 @@ def within_speed_limits(scene: Scene, data: mujoco.MjData, u: np.ndarray, qdot: 
     horizon_s, so a joint already past its limit is braked back within horizon_s. The allowed a nearest u's is
     a_t; its torques M a_t can pass a motor's limit (the joints are coupled through M), so the torques are
     M (a_0 + s (a_t - a_0)), a_0 the allowed accelerations nearest rest, with the largest s in [0, 1] within the
-    torque limits: the whole motion scaled back, as a trajectory scaler does. `measured`: the arm's acceleration
-    over the last step and the torques applied over it; what they do not explain, M^-1 (applied - bias) aside, came
-    from outside (the cube's contact, which can twist the wrist), and the allowed accelerations leave room for it
-    where it drives a joint towards its limit (an arm pushing the cube reached 1.30 of a limit without it)."""
+    torque limits: the whole motion scaled back, as a trajectory scaler does. The cube's contact forces, which
+    only hold the arm back, are left out."""
     low_Nm, high_Nm = -scene.torque_limit - bias, scene.torque_limit - bias
     u = np.clip(u, low_Nm, high_Nm)
     full = np.zeros((scene.model.nv, scene.model.nv))
     mujoco.mj_fullM(scene.model, data, full)
     inertia = full[np.ix_(scene.arm_dof_adr, scene.arm_dof_adr)]
     low, high = (-speed_limit - qdot) / horizon_s, (speed_limit - qdot) / horizon_s
-    if measured is not None:
-        acceleration, applied_Nm = measured
-        outside = acceleration - np.linalg.solve(inertia, applied_Nm - bias)
-        low, high = low - np.minimum(outside, 0.0), high - np.maximum(outside, 0.0)
     acceleration = np.linalg.solve(inertia, u)
     if np.all(acceleration >= low) and np.all(acceleration <= high):
         return u

@@ -124,12 +124,10 @@ class ExecutorNode(Node):
             velocities = dict(zip(message.name, message.velocity))
             q = np.array([positions[j] for j in ARM_JOINTS])
             qdot = np.array([velocities.get(j, 0.0) for j in ARM_JOINTS])
-            efforts = dict(zip(message.name, message.effort))  # NaN where none: the speed guard then does without
-            effort = np.array([efforts.get(j, math.nan) for j in ARM_JOINTS])
         except KeyError:
             self.get_logger().warning(f"joint states without {list(ARM_JOINTS)} ignored", throttle_duration_sec=1.0)
             return
-        reading = JointReading(_seconds(message.header.stamp), q, qdot, effort)
+        reading = JointReading(_seconds(message.header.stamp), q, qdot, np.array(message.effort, dtype=float))
         arrival = time.time()
         self._joints, self._joints_arrival = reading, arrival
         executor, bag = self._executor, self._bag
