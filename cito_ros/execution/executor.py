@@ -182,8 +182,10 @@ class Executor:
                 (self._pending.kind == "replan" or self.phase is Phase.PLANNING):
             work, self._pending = self._pending, None
             self.policy = work.policy
-            if work.kind == "plan":
+            if work.kind == "plan":  # counted as made now: one planned ahead is dropped if the cube is found there
                 self.phase, self._push_end_s = Phase.PUSHING, work.policy.end_s
+                self.pushes += 1
+                self.sturdy_pushes.append(work.policy.sturdy)
         if self.phase is Phase.PUSHING and self._off_path_m() > self.settings.executor.off_path_m:
             self.pushes_cut += 1
             self._push_end_s = now_s
@@ -312,8 +314,7 @@ class Executor:
             if self.phase is Phase.RETREATING:
                 effective = max(effective, self._retreat.end_s)
             if job.kind == "plan":  # a fresh push starts from rest when it is ready: its time 0 is then
-                outcome, self.pushes = dataclasses.replace(outcome, start_s=effective), self.pushes + 1
-                self.sturdy_pushes.append(outcome.sturdy)
+                outcome = dataclasses.replace(outcome, start_s=effective)
             else:
                 self.replans_taken += 1
             self._pending = Work(outcome, effective, elapsed_s, job.kind)
