@@ -231,18 +231,14 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     predicts would leave the cube no closer is not made, and the execution ends there."""
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
     home = start_configuration(7)
-    executor, world = started(strict)
-    while executor.phase is not Phase.RETREATING and world.time_s < 25:
-        work_in_line(executor, world.time_s)
-        world.step(executor.command(world.time_s))
-        deliver(executor, world)
-    assert executor.phase is Phase.RETREATING and executor.pushes == 1
+    executor, world = retreating(strict)
     cube_before, retreat = world.true_object_pose()[0], executor._retreat
     limit = strict.executor.retreat_speed_fraction * world.scene.velocity_limit
     assert np.all(np.abs(retreat.at(0.5 * (retreat.start_s + retreat.end_s))[1]) <= limit + 1e-9)
     job = executor.job(world.time_s)  # the next push, planned as the arm retreats: from where it will be
     assert job is not None and job.kind == "plan" and np.array_equal(job.q, home)
-    closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad)
+    closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad,
+                       job.state)
     next_push = executor.accept(job, dataclasses.replace(closer, start_s=world.time_s), 0.5)
     assert next_push.effective_s == retreat.end_s and executor.pushes == 1  # counted once it is made
     while executor.phase is Phase.RETREATING:
@@ -255,11 +251,7 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     assert np.abs(world.joints().q - home).max() < 0.05  # back where it started (the servo's error)
     assert np.linalg.norm(world.true_object_pose()[0][:2] - cube_before[:2]) < 0.003  # the cube not dragged along
     # the same, with a next push that would leave the cube no closer
-    executor, world = started(strict)
-    while executor.phase is not Phase.RETREATING and world.time_s < 25:
-        work_in_line(executor, world.time_s)
-        world.step(executor.command(world.time_s))
-        deliver(executor, world)
+    executor, world = retreating(strict)
     job = executor.job(world.time_s)
     no_closer = ending_at(executor, executor.policy, *job.object_pose)  # the cube predicted to stay where it is
     assert executor.accept(job, no_closer, 0.5) is None
@@ -268,9 +260,20 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     assert executor.sturdy_pushes == [False]  # a 0.01 mm tolerance: in no world does the plan reach the goal
 
 
-def ending_at(executor: Executor, policy: Policy, position_m, yaw_rad: float) -> Policy:
-    """`policy` with the cube predicted at (x, y), yaw_rad at its end."""
-    reference = policy.reference.copy()
+def retreating(strict) -> tuple[Executor, SimulatedWorld]:
+    """An execution whose first push missed (`strict`: a tolerance no push meets), the arm retreating."""
+    executor, world = started(strict)
+    while executor.phase is not Phase.RETREATING and world.time_s < 25:
+        work_in_line(executor, world.time_s)
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert executor.phase is Phase.RETREATING and executor.pushes == 1
+    return executor, world
+
+
+def ending_at(executor: Executor, policy: Policy, position_m, yaw_rad: float, start=None) -> Policy:
+    """`policy` with the cube predicted at (x, y), yaw_rad at its end (and its reference at `start` before)."""
+    reference = policy.reference.copy() if start is None else np.repeat(start[None], len(policy.reference), axis=0)
     cube = executor.model.scene.object_qpos(reference[-1])
     cube[:2], cube[3:7] = position_m, [math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)]
     return dataclasses.replace(policy, reference=reference)
@@ -299,12 +302,7 @@ def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution
     again. Here the first push is judged against a tolerance no push meets, and the cube after the retreat against
     one it meets. The next push, planned during the retreat, is then not made nor counted."""
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
-    executor, world = started(strict)
-    while executor.phase is not Phase.RETREATING and world.time_s < 20:
-        work_in_line(executor, world.time_s)
-        world.step(executor.command(world.time_s))
-        deliver(executor, world)
-    assert executor.phase is Phase.RETREATING and executor.pushes == 1
+    executor, world = retreating(strict)
     job = executor.job(world.time_s)
     closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad)
     assert executor.accept(job, dataclasses.replace(closer, start_s=world.time_s), 0.5) is not None

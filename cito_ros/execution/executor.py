@@ -113,6 +113,7 @@ class Executor:
         self.pushes = 0
         self.pushes_cut = 0                    # pushes cut short with the cube off their path (executor.off_path_m)
         self.sturdy_pushes: list[bool] = []    # per push made: whether its plan was sturdy (Policy.sturdy)
+        self.stale_plans = 0                   # pushes planned ahead, dropped: the cube had moved before they began
         self.cause = ""                        # why it ended, finer than `ending` (set with it: _end)
         self.replan_seconds: list[float] = []  # every replan's compute time, taken or not
         self.replans_taken = 0                 # the replans that improved on the running plan and took its place
@@ -177,13 +178,17 @@ class Executor:
             if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s and \
                     self._succeeded(*self.errors(now_s), ", once the arm drew back"):
                 return
-        # a push planned during the retreat waits for its end
+        # a push planned during the retreat waits for its end; if the cube has moved since it was planned (the
+        # retreating arm brushed it), it is dropped, and the next job plans it again from where the cube is
         if self._pending is not None and now_s >= self._pending.effective_s and \
                 (self._pending.kind == "replan" or self.phase is Phase.PLANNING):
             work, self._pending = self._pending, None
-            self.policy = work.policy
-            if work.kind == "plan":  # counted as made now: one planned ahead is dropped if the cube is found there
-                self.phase, self._push_end_s = Phase.PUSHING, work.policy.end_s
+            if work.kind == "replan":
+                self.policy = work.policy
+            elif self._moved_since(work.policy, now_s):
+                self.stale_plans += 1
+            else:  # counted as made now: one planned ahead is dropped if the cube is found at the goal
+                self.policy, self.phase, self._push_end_s = work.policy, Phase.PUSHING, work.policy.end_s
                 self.pushes += 1
                 self.sturdy_pushes.append(work.policy.sturdy)
         if self.phase is Phase.PUSHING and self._off_path_m() > self.settings.executor.off_path_m:
@@ -204,6 +209,15 @@ class Executor:
             self.phase = Phase.RETREATING
             self._retreat = Retreat.between(now_s, joints.q, self._home_q, self.model.scene.velocity_limit,
                                             self.settings.executor)
+
+    def _moved_since(self, policy: Policy, now_s: float) -> bool:
+        """Whether the cube has left where a push was planned for it: moved since by more than
+        executor.moved_fraction of the task's tolerances (the larger of position and yaw)."""
+        planned = self.model.scene.object_qpos(policy.reference[0])
+        (x, y), yaw = self.object_pose(now_s)
+        turn = abs(math.remainder(yaw - yaw_of(planned[3:7]), 2 * math.pi))
+        return tolerance_ratio(math.hypot(x - planned[0], y - planned[1]), turn, self.settings.task) > \
+            self.settings.executor.moved_fraction
 
     def _off_path_m(self) -> float:
         """How far the cube's last measured position is from where the running push's reference has it at that

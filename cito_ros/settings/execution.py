@@ -100,6 +100,9 @@ class ExecutorSettings:
         "the executor's plans: tracking.world_friction_scales for them (a plan at the goal ends the search only if "
         "the executor's own servo also brings the cube there in each such world)", positive=True)
     world_mass_scales: tuple[float, ...] = setting("and tracking.world_mass_scales for them", positive=True)
+    moved_fraction: float = setting("a push planned during the retreat is planned again from where the cube is if "
+                                    "it has moved since by more than this fraction of the task's tolerances (the "
+                                    "larger of position and yaw)", positive=True)
     plan_iterations: int = setting("the planner's iterations for one push (solver.iteration_budget: the best plan "
                                    "by then is taken, the same however loaded the machine is)", minimum=1)
     plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)
