@@ -1,4 +1,6 @@
 """The native engine plugins against the pure-Python oracle (cito_ros.model.oracle)."""
+import dataclasses
+
 import mujoco
 import numpy as np
 import pytest
@@ -130,3 +132,24 @@ def test_native_tracking_equals_the_oracle_bit_for_bit(settings):
     reference = oracle.pd_motion(simulator, pushed.final_state, q_held, np.zeros_like(q_held), gains)
     np.testing.assert_array_equal(held.final_state, reference.final_state)
     np.testing.assert_array_equal(held.object_position_m, reference.object_position_m)
+
+
+def test_native_tracking_with_the_speed_guard_equals_the_oracle_and_keeps_the_joints_within_it(settings):
+    """With tracking.speed_guard (the executor's plans are checked so), a soft servo driven by full torques on every
+    joint through the scripted push: natively as in the oracle, bit for bit, every joint within the guard's 0.95 of
+    its limit plus what one step adds, where without the guard they pass their limits."""
+    problem = build_problem(settings, PushRequest("vscm", 7)).problem
+    simulator, scene = problem.simulator, problem.scene
+    path, steps = joint_path(problem, settings.stages.scripted), simulator.n_steps
+    flat_out = np.tile(np.array([1, -1, 1, -1, 1, 1, 1]) * scene.torque_limit, (steps, 1))
+    servo = dataclasses.replace(settings.tracking, kp=tuple(0.1 * np.array(settings.tracking.kp)),
+                                kd=tuple(0.1 * np.array(settings.tracking.kd)), feed_forward=True)
+    guarded = dataclasses.replace(servo, speed_guard=0.95)
+    native = tracking.pd_motion(simulator, problem.initial_state, path.q[:steps], path.qdot[:steps], guarded, flat_out)
+    python = oracle.pd_motion(simulator, problem.initial_state, path.q[:steps], path.qdot[:steps], guarded, flat_out)
+    for name, value in vars(native).items():
+        if isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(value, getattr(python, name), err_msg=name)
+    raw = tracking.pd_motion(simulator, problem.initial_state, path.q[:steps], path.qdot[:steps], servo, flat_out)
+    assert np.max(np.abs(raw.qdot) / scene.velocity_limit) > 1.2
+    assert np.max(np.abs(native.qdot) / scene.velocity_limit) <= 0.95 + 0.01

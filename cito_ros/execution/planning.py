@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, push_model
+from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Job, Work, push_model
 from cito_ros.execution.mpc import servo_gains
 from cito_ros.execution.policy import Policy
 from cito_ros.planner import push_limits
@@ -29,7 +29,8 @@ def warm_up(settings: Settings) -> None:
 
 def executor_plan_settings(settings: Settings, time_left_s: float, iterations: int) -> Settings:
     """The planner's settings for the executor's pushes: `iterations` within the time left (at most
-    plan_time_limit_s), and a plan checked with the controller that will run it, the executor's servo, in the model
+    plan_time_limit_s), and a plan checked with the controller that will run it, the executor's servo with its speed
+    guard (a push the guard changes is judged as it runs: docs/results.md), in the model
     and in the worlds of executor.world_*_scales (so that a push whose outcome hangs on the cube's friction and mass
     is not taken). Its first script is made with the servo, the next with the planner's stiff gains (gain_scale 1 /
     servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes."""
@@ -39,6 +40,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": iterations,
         "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(), "tracking.feed_forward": True,
+        "tracking.speed_guard": SPEED_GUARD, "tracking.speed_horizon_s": executor.speed_horizon_s,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
         "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],

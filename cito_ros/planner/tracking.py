@@ -135,8 +135,8 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
               gains: TrackingSettings, feed_forward: np.ndarray | None = None) -> Trajectory:
     """len(q_ref) steps from initial_state, the controller's motor torques before step t
     clamp(feed_forward[t] + kp (q_ref[t] - q) + kd (qdot_ref[t] - qdot)) to the motor limits (no feed_forward:
-    the PD alone), every other control zero; natively (cito_track; cito_ros.model.oracle.pd_motion is the same in
-    Python)."""
+    the PD alone), through the executor's speed guard where gains.speed_guard > 0, every other control zero;
+    natively (cito_track; cito_ros.model.oracle.pd_motion is the same in Python)."""
     scene, model = simulator.scene, simulator.model
     steps = len(q_ref)
     states = np.empty((steps, simulator.nstate))
@@ -148,5 +148,6 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
                                                             scene.torque_limit))
     data = mujoco.MjData(model)  # a fresh one per motion: starts may run side by side
     _native.track(model._address, data._address, steps, len(scene.motor_ids), *floats, *indices, states, sensordata,
-                  controls, warnings, None if feed_forward is None else np.ascontiguousarray(feed_forward, dtype=float))
+                  controls, warnings, None if feed_forward is None else np.ascontiguousarray(feed_forward, dtype=float),
+                  gains.speed_guard * scene.velocity_limit if gains.speed_guard > 0 else None, gains.speed_horizon_s)
     return simulator.trajectory(initial_state, states, sensordata, controls, warning_counts(warnings))

@@ -41,6 +41,10 @@ class TrackingSettings:
     hold_s: float = setting(
         "after a plan's last point the controller holds it at rest this long, as a joint trajectory controller "
         "does; every execution is judged where the object is then, not at the end of the horizon (s)", minimum=0.0)
+    speed_guard: float = setting("the controller keeps every joint within this fraction of its velocity limit "
+                                 "speed_horizon_s ahead, as the executor's speed guard does (0: no guard)",
+                                 minimum=0.0)
+    speed_horizon_s: float = setting("how far ahead (s)", positive=True)
 
     def check(self, path: str) -> None:
         if len(self.kp) != 7 or len(self.kd) != 7:

@@ -63,12 +63,16 @@ int cito_feedback_rollouts(const mjModel* m, mjData** datas, int nthread, const 
 // mjSTATE_FULLPHYSICS; d reset first, as a fresh mjData), where before step s the motor
 // motor_ids[j] of joint j gets clamp(kp_j (q_ref[s, j] - q_j) + kd_j (qdot_ref[s, j] - qdot_j),
 // -torque_limit_j, torque_limit_j), q_j = qpos[qpos_adr[j]], qdot_j = qvel[dof_adr[j]], plus
-// feed_forward[s, j] inside the clamp where feed_forward is not NULL, and every other control is zero.
-// Row-major arrays; q_ref, qdot_ref, feed_forward: steps x n_joints.
+// feed_forward[s, j] inside the clamp where feed_forward is not NULL, and every other control is zero;
+// where speed_limit is not NULL, those torques then pass the executor's speed guard (joint speeds kept within
+// speed_limit speed_horizon seconds ahead, cito_ros.execution.policy.within_speed_limits without bias).
+// Row-major arrays; q_ref, qdot_ref, feed_forward: steps x n_joints; n_joints <= 64.
 typedef struct {
   int steps, n_joints;
   const mjtNum *initial_state, *q_ref, *qdot_ref, *kp, *kd, *torque_limit;
   const mjtNum* feed_forward;  // NULL: none
+  const mjtNum* speed_limit;   // NULL: no speed guard
+  mjtNum speed_horizon;
   const int *qpos_adr, *dof_adr, *motor_ids;
   mjtNum* states;      // out: steps x nstate, the state after each step
   mjtNum* sensordata;  // out: steps x nsensordata, the sensors before each step

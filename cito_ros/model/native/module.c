@@ -166,24 +166,30 @@ static PyObject* track(PyObject* self, PyObject* args) {
   unsigned long long model_address, data_address;
   CitoTracking t;
   PyObject *initial_state, *q_ref, *qdot_ref, *kp, *kd, *torque_limit, *qpos_adr, *dof_adr, *motor_ids, *states,
-      *sensordata, *controls, *warnings, *feed_forward;
-  if (!PyArg_ParseTuple(args, "KKiiOOOOOOOOOOOOOO", &model_address, &data_address, &t.steps, &t.n_joints,
+      *sensordata, *controls, *warnings, *feed_forward, *speed_limit;
+  if (!PyArg_ParseTuple(args, "KKiiOOOOOOOOOOOOOOOd", &model_address, &data_address, &t.steps, &t.n_joints,
                         &initial_state, &q_ref, &qdot_ref, &kp, &kd, &torque_limit, &qpos_adr, &dof_adr,
-                        &motor_ids, &states, &sensordata, &controls, &warnings, &feed_forward)) {
+                        &motor_ids, &states, &sensordata, &controls, &warnings, &feed_forward, &speed_limit,
+                        &t.speed_horizon)) {
     return NULL;
   }
   const mjModel* m = (const mjModel*)(uintptr_t)model_address;
   mjData* d = (mjData*)(uintptr_t)data_address;
-  if (!m || !d || t.steps < 0 || t.n_joints < 0) {
-    PyErr_SetString(PyExc_ValueError, "need model and mjData addresses, steps >= 0 and n_joints >= 0");
+  if (!m || !d || t.steps < 0 || t.n_joints < 0 || t.n_joints > 64) {
+    PyErr_SetString(PyExc_ValueError, "need model and mjData addresses, steps >= 0 and 0 <= n_joints <= 64");
+    return NULL;
+  }
+  if (speed_limit != Py_None && !(t.speed_horizon > 0)) {
+    PyErr_SetString(PyExc_ValueError, "a speed guard needs speed_horizon > 0");
     return NULL;
   }
   Py_ssize_t nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), steps = t.steps, n = t.n_joints;
-  int nview = feed_forward == Py_None ? 13 : 14;  // None: no feed-forward
   t.feed_forward = NULL;
-  Py_buffer views[14];
-  // each buffer, and the member of t that points at it
-  struct { PyObject* object; Py_ssize_t count; int writable; char format; const char* name; void* member; } specs[14] = {
+  t.speed_limit = NULL;
+  Py_buffer views[15];
+  // each buffer, and the member of t that points at it (the optional ones last: None leaves them NULL)
+  typedef struct { PyObject* object; Py_ssize_t count; int writable; char format; const char* name; void* member; } Spec;
+  Spec specs[15] = {
     {initial_state, nstate, 0, 'd', "initial_state", &t.initial_state},
     {q_ref, steps * n, 0, 'd', "q_ref", &t.q_ref}, {qdot_ref, steps * n, 0, 'd', "qdot_ref", &t.qdot_ref},
     {kp, n, 0, 'd', "kp", &t.kp}, {kd, n, 0, 'd', "kd", &t.kd}, {torque_limit, n, 0, 'd', "torque_limit", &t.torque_limit},
@@ -194,11 +200,17 @@ static PyObject* track(PyObject* self, PyObject* args) {
     {controls, steps * m->nu, 1, 'd', "controls", &t.controls},
     {warnings, mjNWARNING, 1, 'i', "warnings", &t.warnings},
     {feed_forward, steps * n, 0, 'd', "feed_forward", &t.feed_forward},
+    {speed_limit, n, 0, 'd', "speed_limit", &t.speed_limit},
   };
+  int nview = 0;  // the buffers given: the 13 required, then the optional ones not None
+  Spec given[15];
+  for (int i = 0; i < 15; i++) {
+    if (i < 13 || specs[i].object != Py_None) given[nview++] = specs[i];
+  }
   int acquired = 0;
   for (; acquired < nview; acquired++) {
-    if (get_buffer(specs[acquired].object, &views[acquired], specs[acquired].count, specs[acquired].writable,
-                   specs[acquired].format, specs[acquired].name) != 0) {
+    if (get_buffer(given[acquired].object, &views[acquired], given[acquired].count, given[acquired].writable,
+                   given[acquired].format, given[acquired].name) != 0) {
       break;
     }
   }
@@ -210,7 +222,7 @@ static PyObject* track(PyObject* self, PyObject* args) {
   }
   if (invalid) PyErr_Format(PyExc_ValueError, "%s has an index outside the model", invalid);
   if (acquired == nview && !invalid) {
-    for (int i = 0; i < nview; i++) *(void**)specs[i].member = views[i].buf;
+    for (int i = 0; i < nview; i++) *(void**)given[i].member = views[i].buf;
     Py_BEGIN_ALLOW_THREADS
     cito_track(m, d, &t);
     Py_END_ALLOW_THREADS
@@ -234,8 +246,10 @@ static PyMethodDef methods[] = {
    "outputs into the preallocated arrays (see cito_native.h)."},
   {"track", track, METH_VARARGS,
    "track(model_address, data_address, steps, n_joints, initial_state, q_ref, qdot_ref, kp, kd, torque_limit,\n"
-   "qpos_adr, dof_adr, motor_ids, states, sensordata, controls, warnings, feed_forward)\n"
-   "PD joint tracking of q_ref, qdot_ref (plus feed_forward, or None) in the mjData, outputs into the\n"
+   "qpos_adr, dof_adr, motor_ids, states, sensordata, controls, warnings, feed_forward, speed_limit,\n"
+   "speed_horizon)\n"
+   "PD joint tracking of q_ref, qdot_ref (plus feed_forward, or None; through the speed guard at\n"
+   "speed_limit, or None) in the mjData, outputs into the\n"
    "preallocated arrays (see cito_native.h)."},
   {NULL, NULL, 0, NULL},
 };

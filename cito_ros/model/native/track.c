@@ -1,11 +1,64 @@
 // PD joint tracking, the robot's joint trajectory controller of cito_ros.tracking (see cito_native.h).
 #include "cito_native.h"
 
+// The executor's speed guard (cito_ros.execution.policy.within_speed_limits, its motors' limits without the bias
+// forces, which the model's motors add): u changed only where it would take a joint moving at qdot past
+// speed_limit within speed_horizon, at the arm's inertia of d->qM (the last step's); the Python oracle's
+// operations in its order.
+static void speed_guard(const mjModel* m, mjData* d, const CitoTracking* t, mjtNum* u) {
+  int n = t->n_joints, nv = m->nv;
+  mj_markStack(d);
+  mjtNum* full = mj_stackAllocNum(d, (size_t)nv * nv);
+  mjtNum* inertia = mj_stackAllocNum(d, (size_t)n * n);
+  mjtNum* factor = mj_stackAllocNum(d, (size_t)n * n);
+  mjtNum* work = mj_stackAllocNum(d, 6 * (size_t)n);
+  mjtNum *acceleration = work, *low = work + n, *high = work + 2 * n, *clipped = work + 3 * n;
+  mjtNum *rest = work + 4 * n, *step = work + 5 * n;
+  mj_fullM(m, d, full);
+  for (int i = 0; i < n; i++) {
+    for (int j = 0; j < n; j++) inertia[i * n + j] = full[t->dof_adr[i] * nv + t->dof_adr[j]];
+  }
+  mju_copy(factor, inertia, n * n);
+  mju_cholFactor(factor, n, mjMINVAL);
+  mju_cholSolve(acceleration, factor, u, n);
+  int inside = 1;
+  for (int j = 0; j < n; j++) {
+    mjtNum qdot = d->qvel[t->dof_adr[j]];
+    low[j] = (-t->speed_limit[j] - qdot) / t->speed_horizon;
+    high[j] = (t->speed_limit[j] - qdot) / t->speed_horizon;
+    if (acceleration[j] < low[j] || acceleration[j] > high[j]) inside = 0;
+  }
+  if (!inside) {
+    for (int j = 0; j < n; j++) clipped[j] = 0 < low[j] ? low[j] : (0 > high[j] ? high[j] : 0);
+    mju_mulMatVec(rest, inertia, clipped, n, n);
+    for (int j = 0; j < n; j++) {
+      clipped[j] = acceleration[j] < low[j] ? low[j] : (acceleration[j] > high[j] ? high[j] : acceleration[j]);
+    }
+    mju_mulMatVec(step, inertia, clipped, n, n);
+    mjtNum room = 1;
+    for (int j = 0; j < n; j++) {
+      step[j] = step[j] - rest[j];
+      mjtNum limit = t->torque_limit[j], ratio = room;
+      if (step[j] > 0) ratio = (limit - rest[j]) / step[j];
+      else if (step[j] < 0) ratio = (-limit - rest[j]) / step[j];
+      room = ratio < room ? ratio : room;
+    }
+    room = room < 0 ? 0 : room;
+    for (int j = 0; j < n; j++) {
+      mjtNum value = rest[j] + room * step[j], limit = t->torque_limit[j];
+      u[j] = value < -limit ? -limit : (value > limit ? limit : value);
+    }
+  }
+  mj_freeStack(d);
+}
+
 int cito_track(const mjModel* m, mjData* d, const CitoTracking* t) {
   int nstate = mj_stateSize(m, mjSTATE_FULLPHYSICS), ns = m->nsensordata, nu = m->nu, n = t->n_joints;
   // as a fresh mjData: inputs, warmstart and warnings zero
   mj_resetData(m, d);
   mj_setState(m, d, t->initial_state, mjSTATE_FULLPHYSICS);
+  if (t->speed_limit) mj_fwdPosition(m, d);  // the arm's inertia for the guard's first step
+  mjtNum u[64];  // n_joints <= 64 (checked by the caller)
   for (int step = 0; step < t->steps; step++) {
     const mjtNum* q_ref = t->q_ref + (size_t)step * n;
     const mjtNum* qdot_ref = t->qdot_ref + (size_t)step * n;
@@ -17,8 +70,10 @@ int cito_track(const mjModel* m, mjData* d, const CitoTracking* t) {
                        t->kd[j] * (qdot_ref[j] - d->qvel[t->dof_adr[j]]);
       if (t->feed_forward) command = t->feed_forward[(size_t)step * n + j] + command;
       mjtNum limit = t->torque_limit[j];
-      controls[t->motor_ids[j]] = command < -limit ? -limit : (command > limit ? limit : command);
+      u[j] = command < -limit ? -limit : (command > limit ? limit : command);
     }
+    if (t->speed_limit) speed_guard(m, d, t, u);
+    for (int j = 0; j < n; j++) controls[t->motor_ids[j]] = u[j];
     mju_copy(d->ctrl, controls, nu);
     mj_step(m, d);
     mj_getState(m, d, t->states + (size_t)step * nstate, mjSTATE_FULLPHYSICS);
