@@ -32,8 +32,9 @@ import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over, yaw_of
 from cito_ros.execution.mpc import PushModel
-from cito_ros.execution.policy import Policy, Retreat, bias_torques, within_speed_limits
+from cito_ros.execution.policy import Policy, Retreat, bias_torques
 from cito_ros.execution.world import JointReading, PoseReading
+from cito_ros.model.speed_guard import within_speed_limits
 from cito_ros.planner.results import tolerance_ratio
 from cito_ros.settings import SceneConfig, Settings
 
@@ -70,9 +71,13 @@ class ExecuteGoal:
 
     def errors(self, position_m, yaw_rad: float) -> tuple[float, float]:
         """The position (m) and yaw (rad) error of a cube at (x, y) with yaw_rad against this goal."""
-        target = self.target_position_m
-        return float(math.hypot(position_m[0] - target[0], position_m[1] - target[1])), \
-            abs(math.remainder(yaw_rad - self.target_yaw_rad, 2 * math.pi))
+        return pose_errors(position_m, yaw_rad, self.target_position_m, self.target_yaw_rad)
+
+
+def pose_errors(position_m, yaw_rad: float, other_position_m, other_yaw_rad: float) -> tuple[float, float]:
+    """How far apart two planar poses are: in position (m, x and y) and in yaw (rad, the shorter way round)."""
+    return float(math.hypot(position_m[0] - other_position_m[0], position_m[1] - other_position_m[1])), \
+        abs(math.remainder(yaw_rad - other_yaw_rad, 2 * math.pi))
 
 
 @dataclass(frozen=True)
@@ -214,10 +219,8 @@ class Executor:
         """Whether the cube has left where a push was planned for it: moved since by more than
         executor.moved_fraction of the task's tolerances (the larger of position and yaw)."""
         planned = self.model.scene.object_qpos(policy.reference[0])
-        (x, y), yaw = self.object_pose(now_s)
-        turn = abs(math.remainder(yaw - yaw_of(planned[3:7]), 2 * math.pi))
-        return tolerance_ratio(math.hypot(x - planned[0], y - planned[1]), turn, self.settings.task) > \
-            self.settings.executor.moved_fraction
+        moved = pose_errors(*self.object_pose(now_s), planned[:2], yaw_of(planned[3:7]))
+        return tolerance_ratio(*moved, self.settings.task) > self.settings.executor.moved_fraction
 
     def _off_path_m(self) -> float:
         """How far the cube's last measured position is from where the running push's reference has it at that

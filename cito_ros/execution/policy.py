@@ -87,34 +87,6 @@ def bias_torques(scene: Scene, data: mujoco.MjData, q: np.ndarray, qdot: np.ndar
     return data.qfrc_bias[scene.arm_dof_adr].copy()
 
 
-def within_speed_limits(scene: Scene, data: mujoco.MjData, u: np.ndarray, qdot: np.ndarray, bias: np.ndarray,
-                        speed_limit: np.ndarray, horizon_s: float) -> np.ndarray:
-    """u within the motors' torque limits (u + bias within +-torque_limit), changed only where it would take an arm
-    joint moving at qdot past speed_limit within horizon_s.
-
-    The arm's accelerations from u are a = M^-1 u (M its inertia at `data`'s positions, forwarded by bias_torques:
-    motors that add the bias forces leave u to accelerate the arm); the allowed ones are (+-speed_limit - qdot) /
-    horizon_s, so a joint already past its limit is braked back within horizon_s. The allowed a nearest u's is
-    a_t; its torques M a_t can pass a motor's limit (the joints are coupled through M), so the torques are
-    M (a_0 + s (a_t - a_0)), a_0 the allowed accelerations nearest rest, with the largest s in [0, 1] within the
-    torque limits: the whole motion scaled back, as a trajectory scaler does. The cube's contact forces, which
-    only hold the arm back, are left out."""
-    low_Nm, high_Nm = -scene.torque_limit - bias, scene.torque_limit - bias
-    u = np.clip(u, low_Nm, high_Nm)
-    full = np.zeros((scene.model.nv, scene.model.nv))
-    mujoco.mj_fullM(scene.model, data, full)
-    inertia = full[np.ix_(scene.arm_dof_adr, scene.arm_dof_adr)]
-    low, high = (-speed_limit - qdot) / horizon_s, (speed_limit - qdot) / horizon_s
-    acceleration = np.linalg.solve(inertia, u)
-    if np.all(acceleration >= low) and np.all(acceleration <= high):
-        return u
-    rest_Nm = inertia @ np.clip(0.0, low, high)
-    step_Nm = inertia @ np.clip(acceleration, low, high) - rest_Nm
-    up, down = step_Nm > 0, step_Nm < 0
-    room = np.concatenate([(high_Nm - rest_Nm)[up] / step_Nm[up], (low_Nm - rest_Nm)[down] / step_Nm[down], [1.0]])
-    return np.clip(rest_Nm + float(np.clip(np.min(room), 0.0, 1.0)) * step_Nm, low_Nm, high_Nm)
-
-
 @dataclass(frozen=True)
 class Retreat:
     """A minimum-jerk joint path from one pose to another, on the robot's clock."""

@@ -21,6 +21,7 @@ import numpy as np
 
 from cito_ros.model.scene import Scene
 from cito_ros.model.simulator import Simulator, Trajectory, warning_counts
+from cito_ros.model.speed_guard import within_speed_limits
 from cito_ros.settings import TrackingSettings
 
 
@@ -101,8 +102,9 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
             command = feed_forward[t] + command
         controls[t, scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
         if gains.speed_guard > 0:
-            controls[t, scene.motor_ids] = speed_guard(scene, data, controls[t, scene.motor_ids],
-                                                       gains.speed_guard * scene.velocity_limit, gains.speed_horizon_s)
+            controls[t, scene.motor_ids] = within_speed_limits(
+                scene, data, controls[t, scene.motor_ids], data.qvel[scene.arm_dof_adr], np.zeros(len(kp)),
+                gains.speed_guard * scene.velocity_limit, gains.speed_horizon_s)
         data.ctrl[:] = controls[t]
         mujoco.mj_step(model, data)
         mujoco.mj_getState(model, data, states[t], mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -110,32 +112,3 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
     warnings = warning_counts(np.array([warning.number for warning in data.warning]))
     return simulator.trajectory(initial_state, states, sensordata, controls, warnings)
 
-
-def speed_guard(scene: Scene, data: mujoco.MjData, u: np.ndarray, speed_limit: np.ndarray, horizon_s: float
-                ) -> np.ndarray:
-    """cito_track's speed guard (the executor's, cito_ros.execution.policy.within_speed_limits, with the motors'
-    limits on u alone) in MuJoCo's own operations, in cito_track's order: u changed only where it would take a joint
-    past speed_limit within horizon_s, at the arm's inertia of data.qM (the last step's)."""
-    n, dofs = len(u), scene.arm_dof_adr
-    full = np.zeros((scene.model.nv, scene.model.nv))
-    mujoco.mj_fullM(scene.model, data, full)
-    inertia = np.ascontiguousarray(full[np.ix_(dofs, dofs)])
-    factor = inertia.copy()
-    mujoco.mju_cholFactor(factor, mujoco.mjMINVAL)
-    acceleration = np.zeros(n)
-    mujoco.mju_cholSolve(acceleration, factor, np.ascontiguousarray(u))
-    qdot = data.qvel[dofs]
-    low, high = (-speed_limit - qdot) / horizon_s, (speed_limit - qdot) / horizon_s
-    if np.all(acceleration >= low) and np.all(acceleration <= high):
-        return u
-    rest, target = np.zeros(n), np.zeros(n)
-    mujoco.mju_mulMatVec(rest, inertia, np.ascontiguousarray(np.where(0 < low, low, np.where(0 > high, high, 0.0))))
-    mujoco.mju_mulMatVec(target, inertia, np.ascontiguousarray(
-        np.where(acceleration < low, low, np.where(acceleration > high, high, acceleration))))
-    step, room = target - rest, 1.0
-    for j in range(n):
-        ratio = (scene.torque_limit[j] - rest[j]) / step[j] if step[j] > 0 else \
-            (-scene.torque_limit[j] - rest[j]) / step[j] if step[j] < 0 else room
-        room = ratio if ratio < room else room
-    room = 0.0 if room < 0 else room
-    return np.clip(rest + room * step, -scene.torque_limit, scene.torque_limit)

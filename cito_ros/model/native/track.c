@@ -1,7 +1,7 @@
 // PD joint tracking, the robot's joint trajectory controller of cito_ros.tracking (see cito_native.h).
 #include "cito_native.h"
 
-// The executor's speed guard (cito_ros.execution.policy.within_speed_limits, its motors' limits without the bias
+// The executor's speed guard (cito_ros.model.speed_guard.within_speed_limits, its motors' limits without the bias
 // forces, which the model's motors add): u changed only where it would take a joint moving at qdot past
 // speed_limit within speed_horizon, at the arm's inertia of d->qM (the last step's); the Python oracle's
 // operations in its order.
