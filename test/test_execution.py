@@ -317,17 +317,19 @@ def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution
 
 def test_an_execution_begun_with_the_arm_against_the_cube_draws_it_back_to_the_start_pose_and_pushes_from_there(
         settings):
-    """The last execution was cancelled at the end of its push, the arm against the cube: a push planned from there
+    """The last execution was cancelled during its push, the arm against the cube: a push planned from there
     would start in the cube. The next execution draws the arm back to the start pose of beta first, the cube left
     where it is, and plans its push from there."""
     home = start_configuration(settings.beta)
     executor, world = started(settings)
-    while executor.phase is not Phase.SETTLING and world.time_s < 20:
+    clearance_m = settings.executor.start_clearance_m
+    while not (executor.phase is Phase.PUSHING and world.scene.arm_clearance(world.data, 0.01)[0] < clearance_m) \
+            and executor.phase is not Phase.DONE and world.time_s < 20:
         work_in_line(executor, world.time_s)
         world.step(executor.command(world.time_s))
         deliver(executor, world)
     executor.cancel()
-    assert world.scene.arm_clearance(world.data, 0.01)[0] < settings.executor.start_clearance_m
+    assert world.scene.arm_clearance(world.data, 0.01)[0] < clearance_m
     follow_up = Executor(settings, dataclasses.replace(GOAL, target_position_m=(1.13, 0.03)))
     while not follow_up.estimator.has_pose:
         world.step(executor.command(world.time_s))  # the cancelled execution holds the arm

@@ -30,8 +30,10 @@ def test_the_scripted_torques_push_the_object_most_of_the_way_to_the_goal(settin
 def test_the_plate_path_ends_with_the_objects_face_at_the_goal(settings):
     script = settings.stages.scripted
     problem = executor(settings, 6, [1.10, 0.05])
-    path, along = plate_path(problem, script)
+    path, normals = plate_path(problem, script)
+    along = normals[-1]
     scene = problem.scene
+    assert np.all(normals == along)
     assert along == pytest.approx(np.r_[np.array([0.11, 0.05]) / np.hypot(0.11, 0.05), 0.0])
     face_to_plate = scene.object_half_size[0] + scene.plate_half_thickness_m
     lift = np.array([0.0, 0.0, script.contact_height_m])
@@ -39,6 +41,24 @@ def test_the_plate_path_ends_with_the_objects_face_at_the_goal(settings):
     at_approach = int(round(script.approach_fraction * (len(path) - 1)))
     start = scene.object_qpos(problem.initial_state)[:3]
     assert path[at_approach] == pytest.approx(start - (face_to_plate + script.standoff_m) * along + lift, abs=1e-3)
+
+
+def test_the_face_following_script_turns_the_object_to_the_target_yaw_not_to_the_push_direction(settings):
+    # the push heads 0.43 rad left of the arm's axis, the goal's yaw is 0.3 rad right of it: a plate along the push
+    # lines the cube up with the push; a plate on the face, turning with it, with the goal
+    target, yaw = [1.10, 0.05], -0.3
+    ends = {}
+    for follow in (False, True):
+        followed = settings.with_overrides({"stages.scripted.follow_face": follow})
+        problem = executor(followed, 6, target, yaw)
+        path, normals = plate_path(problem, followed.stages.scripted)
+        evaluation = problem.evaluate(problem.with_torques(scripted_torques(problem, followed.stages.scripted,
+                                                                            followed.tracking)))
+        assert evaluation.finite and not evaluation.warnings
+        ends[follow] = problem.task.angle_error(problem.scene.object_qpos(evaluation.states[-1])[3:7])
+    assert normals[-1] == pytest.approx([np.cos(yaw), np.sin(yaw), 0.0])
+    assert abs(ends[False][2]) > 0.4  # turned most of the way to the push's direction (0.73 rad from the goal's)
+    assert abs(ends[True][2]) < 0.25 * abs(ends[False][2])
 
 
 def test_the_joint_path_keeps_within_the_speed_fraction_and_inside_the_ranges(settings):

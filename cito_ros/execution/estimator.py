@@ -15,14 +15,9 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.world import JointReading, PoseReading
-from cito_ros.model.scene import Scene
+from cito_ros.model.scene import Scene, yaw_of
 
 FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
-
-
-def yaw_of(quaternion: np.ndarray) -> float:
-    w, x, y, z = quaternion
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def tilt_of(quaternion: np.ndarray) -> float:

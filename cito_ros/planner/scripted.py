@@ -20,10 +20,12 @@ does not succeed costs its stages, and the discovery starts follow as before.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import mujoco
 import numpy as np
 
+from cito_ros.model.scene import yaw_of
 from cito_ros.model.simulator import FULL_PHYSICS
 from cito_ros.planner import tracking
 from cito_ros.planner.tracking import JointPath
@@ -52,31 +54,52 @@ def _at_start(problem) -> mujoco.MjData:
 
 
 def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarray]:
-    """(n_steps + 1, 3) plate-centre positions, world frame, and the push's unit direction: from where
+    """(n_steps + 1, 3) plate-centre positions, world frame, and (n_steps + 1, 3) unit plate normals: from where
     the plate starts to standoff_m behind the object's face along the push, then through to where that
-    face ends with the object at the target, both at contact_height_m above the object's centre."""
+    face ends with the object at the target, both at contact_height_m above the object's centre. The normal
+    turns along the push during the approach and keeps it; with script.follow_face it is the pushed face's
+    instead, turning with the object's yaw from the start's to the target's (a flat plate pressed on a face
+    lines the face up with it: a plate along the push turns the cube to the push's direction, whatever the
+    target yaw)."""
     scene, simulator = problem.simulator.scene, problem.simulator
     data = _at_start(problem)
     plate = data.site_xpos[scene.robot_site_id].copy()
-    start = scene.object_qpos(problem.initial_state)[:3]
+    object_qpos = scene.object_qpos(problem.initial_state)
+    start = object_qpos[:3]
     push = problem.task.target_position_m[:2] - start[:2]
     # a target on the object's start (a turn in place): the plate comes up to the face along its normal
     direction = push if np.linalg.norm(push) > 1e-9 else data.site_xmat[scene.robot_site_id].reshape(3, 3)[:2, 2]
     along = np.r_[direction / np.linalg.norm(direction), 0.0]
+    face0, turn = 0.0, 0.0
+    if script.follow_face:
+        yaw0 = yaw_of(object_qpos[3:7])
+        quarter = round(math.remainder(math.atan2(direction[1], direction[0]) - yaw0, 2 * math.pi) / (math.pi / 2))
+        face0 = yaw0 + quarter * math.pi / 2  # the pushed face's inward normal
+        turn = math.remainder(problem.task.target_yaw_rad - yaw0, 2 * math.pi)
+        along = _along(face0)
     behind = scene.object_half_size[0] + scene.plate_half_thickness_m
     lift = np.array([0.0, 0.0, script.contact_height_m])
     before = start - (behind + script.standoff_m) * along + lift
     after = problem.task.target_position_m - behind * along + lift
     T = simulator.n_steps
-    path = np.empty((T + 1, 3))
+    path, normals = np.empty((T + 1, 3)), np.tile(along, (T + 1, 1))
     for t in range(T + 1):
         s = t / T
         if s < script.approach_fraction:
             path[t] = plate + (before - plate) * _minimum_jerk(s / script.approach_fraction)
+            continue
+        sigma = _minimum_jerk((s - script.approach_fraction) / (script.push_end_fraction - script.approach_fraction))
+        if script.follow_face:  # the object's centre and yaw from the start's to the target's, the plate behind
+            normals[t] = _along(face0 + sigma * turn)
+            path[t] = start + sigma * (problem.task.target_position_m - start) + lift - \
+                (behind + (1.0 - sigma) * script.standoff_m) * normals[t]
         else:
-            path[t] = before + (after - before) * _minimum_jerk(
-                (s - script.approach_fraction) / (script.push_end_fraction - script.approach_fraction))
-    return path, along
+            path[t] = before + (after - before) * sigma
+    return path, normals
+
+
+def _along(angle_rad: float) -> np.ndarray:
+    return np.array([math.cos(angle_rad), math.sin(angle_rad), 0.0])
 
 
 def joint_path(problem, script: ScriptedSettings) -> JointPath:
@@ -86,7 +109,7 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
     joint_margin_rad inside the ranges. Where the path is out of reach the joints lag behind it."""
     scene = problem.simulator.scene
     model = scene.model
-    path, along = plate_path(problem, script)
+    path, normals = plate_path(problem, script)
     data = _at_start(problem)
     site, dofs, qadr = scene.robot_site_id, scene.arm_dof_adr, scene.arm_qpos_adr
     normal0 = data.site_xmat[site].reshape(3, 3)[:, 2].copy()
@@ -102,7 +125,7 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
     q[0] = data.qpos[qadr]
     for t in range(1, T + 1):
         turned = min(1.0, t / T / script.approach_fraction)
-        normal = (1.0 - turned) * normal0 + turned * along
+        normal = (1.0 - turned) * normal0 + turned * normals[t]
         normal /= np.linalg.norm(normal)
         for _ in range(script.ik_iterations):
             mujoco.mj_kinematics(model, data)
