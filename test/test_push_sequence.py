@@ -7,7 +7,8 @@ import pytest
 
 from cito_ros.execution.executor import ExecuteGoal, Job, push_model
 from cito_ros.execution.planning import compute
-from cito_ros.model.scene import start_configuration, yaw_of
+from cito_ros.model.scene import start_configuration
+from cito_ros.planner.task import yaw_of
 
 # seed 1's goal 8 of `targets`, its cube where the first closed-loop world puts it: 19 cm at 13 degrees to the
 # cube's face, turning it by 0.38 rad; the push there is not sturdy within 40 iterations, the push 60 % of the way is

@@ -25,8 +25,8 @@ from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
 from cito_ros.execution.planning import work_in_line
 from cito_ros.execution.policy import bias_torques, hold_torques
 from cito_ros.execution.world import SimulatedWorld
-from cito_ros.model.scene import yaw_of
 from cito_ros.planner.plan import plan_push
+from cito_ros.planner.task import yaw_of
 from cito_ros.settings import Settings
 
 REST_WAIT_S = 3.0        # the longest the arm is held after an execution for the cube to come to rest

@@ -15,7 +15,8 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.world import JointReading, PoseReading
-from cito_ros.model.scene import Scene, yaw_of
+from cito_ros.model.scene import Scene
+from cito_ros.planner.task import yaw_of
 
 FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
 

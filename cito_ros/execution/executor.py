@@ -34,9 +34,9 @@ from cito_ros.execution.estimator import StateEstimator, tipped_over
 from cito_ros.execution.mpc import PushModel
 from cito_ros.execution.policy import Policy, Retreat, bias_torques
 from cito_ros.execution.world import JointReading, PoseReading
-from cito_ros.model.scene import yaw_of
 from cito_ros.model.speed_guard import within_speed_limits
 from cito_ros.planner.results import tolerance_ratio
+from cito_ros.planner.task import yaw_of
 from cito_ros.settings import SceneConfig, Settings
 
 SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it

@@ -47,12 +47,6 @@ def pushed_face(position_m, yaw_rad: float) -> int:
     return round(math.remainder(away_rad - yaw_rad, 2 * math.pi) / (math.pi / 2)) % 4
 
 
-def yaw_of(quaternion: np.ndarray) -> float:
-    """The yaw (rad, about world z) of a unit quaternion (w, x, y, z)."""
-    w, x, y, z = quaternion
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
 def start_configuration(beta: float) -> np.ndarray:
     """The paper's start pose q0(beta) = [-pi/12, -pi/b, 0, 3pi/b, -pi/6, -2pi/b, 0] (rad)."""
     beta = require_finite("beta", beta, positive=True)

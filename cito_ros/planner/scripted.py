@@ -25,9 +25,9 @@ import math
 import mujoco
 import numpy as np
 
-from cito_ros.model.scene import yaw_of
 from cito_ros.model.simulator import FULL_PHYSICS
 from cito_ros.planner import tracking
+from cito_ros.planner.task import yaw_of
 from cito_ros.planner.tracking import JointPath
 from cito_ros.settings import ScriptedSettings, TrackingSettings
 

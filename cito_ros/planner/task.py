@@ -23,6 +23,12 @@ def euler_angles(rotation: np.ndarray) -> np.ndarray:
     ])
 
 
+def yaw_of(quaternion: np.ndarray) -> float:
+    """The yaw (rad, about world z) of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = quaternion
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
 def yaw_rotation(yaw_rad: float) -> np.ndarray:
     """The rotation matrix of a yaw about world z."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
