@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over
+from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import PushModel
 from cito_ros.execution.policy import Policy, Retreat, bias_torques
 from cito_ros.execution.world import JointReading, PoseReading
@@ -120,6 +121,8 @@ class Executor:
         self.pushes_cut = 0                    # pushes cut short with the cube off their path (executor.off_path_m)
         self.sturdy_pushes: list[bool] = []    # per push made: whether its plan was sturdy (Policy.sturdy)
         self.stale_plans = 0                   # pushes planned ahead, dropped: the cube had moved before they began
+        self.observed: list[Observed] = []     # every push made, as measured until the cube was judged at rest
+        self._recording: tuple[np.ndarray, list, list] | None = None  # the push's: start state, joints, poses
         self.cause = ""                        # why it ended, finer than `ending` (set with it: _end)
         self.replan_seconds: list[float] = []  # every replan's compute time, taken or not
         self.replans_taken = 0                 # the replans that improved on the running plan and took its place
@@ -135,10 +138,14 @@ class Executor:
             self.started_s = reading.stamp_s
         if self._hold_q is None:
             self._hold_q, self._home_q = reading.q.copy(), reading.q.copy()
+        if self._recording is not None:
+            self._recording[1].append(np.concatenate([[reading.stamp_s], reading.q, reading.qdot]))
 
     def on_pose(self, reading: PoseReading, arrival_s: float) -> None:
         self.estimator.add_pose(reading)
         self._pose_arrival_s = arrival_s
+        if self._recording is not None:
+            self._recording[2].append(self.estimator.last_pose)
 
     # ------------------------------------------------------------------ control
 
@@ -195,6 +202,7 @@ class Executor:
                 self.stale_plans += 1
             else:  # counted as made now: one planned ahead is dropped if the cube is found at the goal
                 self.policy, self.phase, self._push_end_s = work.policy, Phase.PUSHING, work.policy.end_s
+                self._recording = (work.policy.reference[0], [], [])
                 self.pushes += 1
                 self.sturdy_pushes.append(work.policy.sturdy)
         if self.phase is Phase.PUSHING and self._off_path_m() > self.settings.executor.off_path_m:
@@ -205,6 +213,10 @@ class Executor:
         if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
                 self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
             position, orientation = self.errors(now_s)  # at rest: the rest window's mean
+            start, arm, cube = self._recording
+            if len(arm) > 1 and cube:  # what the push showed of the cube (identify)
+                self.observed.append(Observed(start, np.array(arm), np.array(cube)))
+            self._recording = None
             if self._succeeded(position, orientation, ""):
                 return
             if self.pushes >= self.settings.executor.max_pushes:
@@ -292,7 +304,7 @@ class Executor:
             return Job("replan" if self.phase is Phase.PUSHING else "plan", now_s, state,
                        (self._home_q if ahead else self._joints.q).copy(), self.object_pose(now_s),
                        self.time_limit_s - (now_s - self.started_s), self.policy, self._push_end_s,
-                       executor.max_pushes - self.pushes - 1)
+                       executor.max_pushes - self.pushes - 1, tuple(self.observed))
 
     def accept(self, job: Job, outcome: Policy | Failure | None, elapsed_s: float) -> Work | None:
         """Take a job's outcome, computed in elapsed_s (on the robot's clock, from job.now_s): a plan that takes
@@ -366,6 +378,7 @@ class Job:
     running: Policy | None                   # replan: the policy that runs (its torques warm-start the replan)
     push_end_s: float                        # replan: where the push ends
     pushes_left: int = 0                     # plan: the pushes the executor may make after this one
+    observed: tuple[Observed, ...] = ()      # plan: the pushes so far, as measured (identify)
 
 
 @dataclass(frozen=True)
@@ -374,14 +387,20 @@ class Failure:
     message: str
 
 
-_MODELS: dict[ExecuteGoal, tuple[Settings, PushModel]] = {}  # per process: the model of each goal, built once
+# per process: the models of the goal that runs, built once (its scene's cube and the last identified one)
+_MODELS: dict[tuple[ExecuteGoal, tuple[float, float]], tuple[Settings, PushModel]] = {}
 
 
-def push_model(settings: Settings, goal: ExecuteGoal) -> PushModel:
-    """The planner's model of a goal's pushes, built once per process and settings."""
-    if goal not in _MODELS or _MODELS[goal][0] != settings:
-        _MODELS.clear()  # one execution at a time: the last goal's model is the only one kept
+def push_model(settings: Settings, goal: ExecuteGoal, object_scales: tuple[float, float] = (1.0, 1.0)) -> PushModel:
+    """The planner's model of a goal's pushes, the cube's friction and mass object_scales times the scene's, built
+    once per process and settings (the executor's and the identified cube's: two at a time)."""
+    key = (goal, object_scales)
+    if key not in _MODELS or _MODELS[key][0] != settings:
+        for other in [k for k in _MODELS if k != (goal, (1.0, 1.0)) or _MODELS[k][0] != settings]:
+            del _MODELS[other]  # one execution at a time
         config = settings.scene if goal.scene is None else SceneConfig.load(goal.scene)
-        _MODELS[goal] = (settings, PushModel(settings, goal.contact_model, config,
-                                             np.asarray(goal.target_position_m, dtype=float), goal.target_yaw_rad))
-    return _MODELS[goal][1]
+        if object_scales != (1.0, 1.0):
+            config = config.with_object_scaled(*object_scales)
+        _MODELS[key] = (settings, PushModel(settings, goal.contact_model, config,
+                                            np.asarray(goal.target_position_m, dtype=float), goal.target_yaw_rad))
+    return _MODELS[key][1]

@@ -67,13 +67,17 @@ class PushModel:
         mujoco.mj_forward(model, data)
         return home_q if self.scene.arm_clearance(data, clearance_m)[0] >= clearance_m else None
 
-    def problem(self, state: np.ndarray, knots: int, torques: np.ndarray) -> PushProblem:
-        """The push from `state` over `knots` knots without the virtual force, its contact term from where
-        `torques` first touch the cube."""
+    def simulator(self, knots: int) -> Simulator:
+        """The model's simulator of a push over `knots` knots (built once per length)."""
         if knots not in self._simulators:
             self._simulators[knots] = Simulator(self.scene, knots * self.control_period_s, self.control_period_s,
                                                 nthread=self.settings.gradient.threads)
-        simulator = self._simulators[knots]
+        return self._simulators[knots]
+
+    def problem(self, state: np.ndarray, knots: int, torques: np.ndarray) -> PushProblem:
+        """The push from `state` over `knots` knots without the virtual force, its contact term from where
+        `torques` first touch the cube."""
+        simulator = self.simulator(knots)
         settings, weights = self.settings, getattr(self.settings.weights, self.scene.contact_model.name)
         stage = list(settings.stages.physical)[REPLAN_STAGE]
         bare = PushProblem(simulator, state, self.task, stage_cost(settings, weights, False, 0.0, None, 0.0, 0.0),

@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Job, Work, push_model
+from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import servo_gains
 from cito_ros.execution.policy import Policy
 from cito_ros.planner import push_limits
@@ -27,12 +28,14 @@ def warm_up(settings: Settings) -> None:
     push_limits.steady_reach_m(posed.scene, posed.initial_state)
 
 
-def executor_plan_settings(settings: Settings, time_left_s: float, iterations: int) -> Settings:
+def executor_plan_settings(settings: Settings, time_left_s: float, iterations: int, worlds: list | None = None
+                           ) -> Settings:
     """The planner's settings for the executor's pushes: `iterations` within the time left (at most
     plan_time_limit_s), and a plan checked with the controller that will run it, the executor's servo with its speed
     guard (a push the guard changes is judged as it runs: docs/results.md), in the model
     and in the worlds of executor.world_*_scales (so that a push whose outcome hangs on the cube's friction and mass
-    is not taken). Its first script is made with the servo, the next with the planner's stiff gains (gain_scale 1 /
+    is not taken), or in `worlds` (friction and mass scales: those identify left possible). Its first script is
+    made with the servo, the next with the planner's stiff gains (gain_scale 1 /
     servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes."""
     executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
     kp, kd = servo_gains(settings)
@@ -46,8 +49,8 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
         "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],
         "stages.scripted.variants.gain_scale": [script.gain_scale / executor.servo_gain_scale, *variants.gain_scale],
-        "tracking.world_friction_scales": list(executor.world_friction_scales),
-        "tracking.world_mass_scales": list(executor.world_mass_scales)})
+        "tracking.world_friction_scales": [float(v) for v in (worlds[0] if worlds else executor.world_friction_scales)],
+        "tracking.world_mass_scales": [float(v) for v in (worlds[1] if worlds else executor.world_mass_scales)]})
 
 
 def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
@@ -55,17 +58,26 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there.
     A push with pushes left after it is planned to the goal within executor.direct_iterations (a sturdy plan there
     takes 3-19), and where that plan is not sturdy, again to executor.waypoint_fraction of the way, made if sturdy:
-    a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended."""
+    a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended. After a
+    push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
+    it."""
     model = push_model(settings, goal)
     if job.kind == "replan":
         return model.replan(job.now_s, job.state, job.running, settings.executor.replan_budget_s)
+    executor = settings.executor
+    scales, worlds = (1.0, 1.0), None
+    if job.observed and executor.identify_friction_scales:
+        cube = identify(model, job.observed, dataclasses.replace(settings.tracking, feed_forward=False),
+                        executor.identify_friction_scales, executor.identified_spread, executor.identify_tolerance)
+        scales, worlds = (cube.friction_scale, 1.0), [cube.worlds(executor.world_friction_scales),
+                                                      executor.world_mass_scales]
     try:
-        executor = settings.executor
         sequence = job.pushes_left > 0 and executor.waypoint_fraction > 0
         request, result = _plan_to(settings, goal, job, 1.0,
-                                   executor.direct_iterations if sequence else executor.plan_iterations)
+                                   executor.direct_iterations if sequence else executor.plan_iterations, scales, worlds)
         if sequence and not result.sturdy:
-            shorter = _plan_to(settings, goal, job, executor.waypoint_fraction, executor.plan_iterations)
+            shorter = _plan_to(settings, goal, job, executor.waypoint_fraction, executor.plan_iterations, scales,
+                               worlds)
             if shorter[1].sturdy:
                 request, result = shorter
         start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
@@ -74,24 +86,27 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
-    return dataclasses.replace(model.policy(job.now_s, start, result.knot_torques_Nm), sturdy=result.sturdy)
+    return dataclasses.replace(push_model(settings, goal, scales).policy(job.now_s, start, result.knot_torques_Nm),
+                               sturdy=result.sturdy)
 
 
-def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, iterations: int
-             ) -> tuple[PushRequest, PlanResult]:
+def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, iterations: int,
+             object_scales: tuple[float, float], worlds: list | None) -> tuple[PushRequest, PlanResult]:
     """A push from the job's measured arm and cube to `fraction` of the way to the goal, in position and in yaw
-    (the shorter way round), planned within `iterations`; ValueError where none can be planned."""
+    (the shorter way round), planned within `iterations` for a cube whose friction and mass are object_scales
+    times the scene's, sturdy in `worlds` around it (friction and mass scales; None: executor.world_*_scales);
+    ValueError where none can be planned."""
     (x, y), yaw = job.object_pose
     position, target_yaw = np.array(goal.target_position_m), goal.target_yaw_rad
     if fraction < 1.0:
         position = np.array([x, y]) + fraction * (position - np.array([x, y]))
         target_yaw = yaw + fraction * math.remainder(target_yaw - yaw, 2 * math.pi)
     request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=position, target_yaw_rad=target_yaw,
-                          scene=goal.scene, object_pose=((x, y), yaw))
+                          scene=goal.scene, object_pose=((x, y), yaw), object_scales=object_scales)
     return request, plan_push(request.contact_model, start_q=request.start_q,
                               target_position_m=request.target_position_m, target_yaw_rad=request.target_yaw_rad,
-                              scene=request.scene, object_pose=request.object_pose,
-                              settings=executor_plan_settings(settings, job.time_left_s, iterations))
+                              scene=request.scene, object_pose=request.object_pose, object_scales=object_scales,
+                              settings=executor_plan_settings(settings, job.time_left_s, iterations, worlds))
 
 
 def work_in_line(executor: Executor, now_s: float) -> Work | None:

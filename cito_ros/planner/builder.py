@@ -33,6 +33,8 @@ class PushRequest:
     scene: a scene name in config/scenes (or a scene YAML path).
     object_pose: ((x, y) or (x, y, z), yaw) of the object where it is now, world frame, instead
       of the scene's pose (z: its resting height).
+    object_scales: (friction, mass) of the object as these times the scene's (what the executor's pushes
+      showed of it: cito_ros.execution.identify).
     """
 
     contact_model: str = "vscm"
@@ -42,6 +44,7 @@ class PushRequest:
     target_yaw_rad: float = 0.0
     scene: str | None = None
     object_pose: tuple[np.ndarray, float] | None = None
+    object_scales: tuple[float, float] = (1.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -79,8 +82,12 @@ def build_problem(settings: Settings, request: PushRequest) -> PlanningProblem:
 
 
 def scene_config(settings: Settings, request: PushRequest) -> SceneConfig:
-    """The request's scene, with the object where the request says it is."""
+    """The request's scene, with the object where and as the request says it is."""
     config = settings.scene if request.scene is None else SceneConfig.load(request.scene)
+    if request.object_scales != (1.0, 1.0):
+        if not all(math.isfinite(v) and v > 0 for v in request.object_scales):
+            raise ValueError(f"object scales must be positive (friction, mass), got {request.object_scales}")
+        config = config.with_object_scaled(*request.object_scales)
     if request.object_pose is None:
         return config
     position, yaw = request.object_pose

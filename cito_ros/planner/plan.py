@@ -35,6 +35,7 @@ def plan_push(
     start_q: np.ndarray | None = None,
     scene: str | None = None,
     object_pose: tuple[np.ndarray, float] | None = None,
+    object_scales: tuple[float, float] = (1.0, 1.0),
     settings: Settings | None = None,
     iteration_callback: Callable[[IterationLog], None] | None = None,
     cancel: threading.Event | None = None,
@@ -51,6 +52,7 @@ def plan_push(
       scene: scene name in config/scenes (default: the settings' scene).
       object_pose: ((x, y) or (x, y, z), yaw) where the object is now, world frame (default: the
         scene's pose); it must stand on the table, clear of the arm, within reach.
+      object_scales: (friction, mass) of the object as these times the scene's.
       settings: planner settings (default: config/planner.yaml); `pipeline` selects the physical
         pipeline or exactly the paper's problem.
       iteration_callback: called with an IterationLog after every solver iteration (from the
@@ -62,7 +64,8 @@ def plan_push(
       ValueError: for an unknown contact model, a bad beta, start configuration, target or scene.
     """
     settings = load_settings() if settings is None else settings
-    request = PushRequest(contact_model, beta, start_q, target_position_m, target_yaw_rad, scene, object_pose)
+    request = PushRequest(contact_model, beta, start_q, target_position_m, target_yaw_rad, scene, object_pose,
+                          object_scales)
     posed = build_problem(settings, request)
     if settings.pipeline == "paper":
         outcome = solve_paper(posed, settings, iteration_callback=iteration_callback, cancel=cancel)

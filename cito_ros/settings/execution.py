@@ -107,6 +107,14 @@ class ExecutorSettings:
     moved_fraction: float = setting("a push planned during the retreat is planned again from where the cube is if "
                                     "it has moved since by more than this fraction of the task's tolerances (the "
                                     "larger of position and yaw)", positive=True)
+    identify_friction_scales: tuple[float, ...] = setting(
+        "after a push, the cube's frictions among these scales of the model's whose simulation, the arm driven "
+        "along its measured path, moves the cube about as the camera saw it (every push so far) are the possible "
+        "ones; the next push is planned for the middle of their range, sturdy at its ends (empty: never)",
+        positive=True)
+    identify_tolerance: float = setting("possible: a mean squared error (of position and yaw, each over its task "
+                                        "tolerance) within this of the best's", minimum=0.0)
+    identified_spread: float = setting("those ends at least this and 1 / this times the middle", minimum=1.0)
     plan_iterations: int = setting("the planner's iterations for one push (solver.iteration_budget: the best plan "
                                    "by then is taken, the same however loaded the machine is)", minimum=1)
     plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)
