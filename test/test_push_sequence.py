@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from cito_ros.execution.executor import ExecuteGoal, Job, push_model
+from cito_ros.execution.executor import ExecuteGoal, Job
+from cito_ros.execution.mpc import push_model
 from cito_ros.execution.planning import compute
 from cito_ros.model.scene import start_configuration
 from cito_ros.planner.task import yaw_of

@@ -32,13 +32,13 @@ import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over
 from cito_ros.execution.identify import Observed
-from cito_ros.execution.mpc import PushModel
+from cito_ros.execution.mpc import push_model
 from cito_ros.execution.policy import Policy, Retreat, bias_torques
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.model.speed_guard import within_speed_limits
 from cito_ros.planner.results import tolerance_ratio
 from cito_ros.planner.task import yaw_of
-from cito_ros.settings import SceneConfig, Settings
+from cito_ros.settings import Settings
 
 SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
 
@@ -385,22 +385,3 @@ class Job:
 class Failure:
     ending: Ending
     message: str
-
-
-# per process: the models of the goal that runs, built once (its scene's cube and the last identified one)
-_MODELS: dict[tuple[ExecuteGoal, tuple[float, float]], tuple[Settings, PushModel]] = {}
-
-
-def push_model(settings: Settings, goal: ExecuteGoal, object_scales: tuple[float, float] = (1.0, 1.0)) -> PushModel:
-    """The planner's model of a goal's pushes, the cube's friction and mass object_scales times the scene's, built
-    once per process and settings (the executor's and the identified cube's: two at a time)."""
-    key = (goal, object_scales)
-    if key not in _MODELS or _MODELS[key][0] != settings:
-        for other in [k for k in _MODELS if k != (goal, (1.0, 1.0)) or _MODELS[k][0] != settings]:
-            del _MODELS[other]  # one execution at a time
-        config = settings.scene if goal.scene is None else SceneConfig.load(goal.scene)
-        if object_scales != (1.0, 1.0):
-            config = config.with_object_scaled(*object_scales)
-        _MODELS[key] = (settings, PushModel(settings, goal.contact_model, config,
-                                            np.asarray(goal.target_position_m, dtype=float), goal.target_yaw_rad))
-    return _MODELS[key][1]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -28,6 +29,9 @@ from cito_ros.planner.solvers.base import IterationMonitor
 from cito_ros.planner.solvers.ilqr import IlqrSolver, feedback_gains
 from cito_ros.planner.stages import stage_cost, touch_profile
 from cito_ros.settings import SceneConfig, Settings
+
+if TYPE_CHECKING:
+    from cito_ros.execution.executor import ExecuteGoal
 
 REPLAN_STAGE = 1  # the physical stage whose weights the replans take: the one every start runs after its first
 
@@ -164,3 +168,22 @@ class PushModel:
             return None
         # iLQR's cost only falls, so its outcome is the last kept step's, whose backward pass gave solver.gains
         return self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem)
+
+
+# per process: the models of the goal that runs, built once (its scene's cube and the last identified one)
+_MODELS: dict[tuple[ExecuteGoal, tuple[float, float]], tuple[Settings, PushModel]] = {}
+
+
+def push_model(settings: Settings, goal: ExecuteGoal, object_scales: tuple[float, float] = (1.0, 1.0)) -> PushModel:
+    """The planner's model of a goal's pushes, the cube's friction and mass object_scales times the scene's, built
+    once per process and settings (the executor's and the identified cube's: two at a time)."""
+    key = (goal, object_scales)
+    if key not in _MODELS or _MODELS[key][0] != settings:
+        for other in [k for k in _MODELS if k != (goal, (1.0, 1.0)) or _MODELS[k][0] != settings]:
+            del _MODELS[other]  # one execution at a time
+        config = settings.scene if goal.scene is None else SceneConfig.load(goal.scene)
+        if object_scales != (1.0, 1.0):
+            config = config.with_object_scaled(*object_scales)
+        _MODELS[key] = (settings, PushModel(settings, goal.contact_model, config,
+                                            np.asarray(goal.target_position_m, dtype=float), goal.target_yaw_rad))
+    return _MODELS[key][1]

@@ -10,9 +10,9 @@ import time
 
 import numpy as np
 
-from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Job, Work, push_model
+from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Job, Work
 from cito_ros.execution.identify import identify
-from cito_ros.execution.mpc import servo_gains
+from cito_ros.execution.mpc import push_model, servo_gains
 from cito_ros.execution.policy import Policy
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
