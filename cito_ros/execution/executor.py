@@ -254,10 +254,11 @@ class Executor:
 
     def _end(self, ending: Ending, message: str, hold_q: np.ndarray | None, cause: str | None = None) -> None:
         """The execution ends; `cause` says why where the ending alone does not (default: the ending's value)."""
-        self.phase, self.ending, self.message, self._pending = Phase.DONE, ending, message, None
+        self.ending, self.message, self._pending = ending, message, None
         self.cause = cause or ending.value
         if hold_q is not None:
             self._hold_q = hold_q.copy()
+        self.phase = Phase.DONE  # last: the node's action thread waits for it outside the lock, then reads the rest
 
     def cancel(self) -> None:
         with self._lock:
