@@ -177,10 +177,12 @@ _MODELS: dict[tuple[ExecuteGoal, tuple[float, float]], tuple[Settings, PushModel
 def push_model(settings: Settings, goal: ExecuteGoal, object_scales: tuple[float, float] = (1.0, 1.0)) -> PushModel:
     """The planner's model of a goal's pushes, the cube's friction and mass object_scales times the scene's, built
     once per process and settings (the executor's and the identified cube's: two at a time)."""
-    key = (goal, object_scales)
+    key, nominal = (goal, object_scales), (goal, (1.0, 1.0))
     if key not in _MODELS or _MODELS[key][0] != settings:
-        for other in [k for k in _MODELS if k != (goal, (1.0, 1.0)) or _MODELS[k][0] != settings]:
-            del _MODELS[other]  # one execution at a time
+        kept = _MODELS.get(nominal)  # one execution at a time: its nominal model stays, any other goes
+        _MODELS.clear()
+        if kept is not None and kept[0] == settings:
+            _MODELS[nominal] = kept
         config = settings.scene if goal.scene is None else SceneConfig.load(goal.scene)
         if object_scales != (1.0, 1.0):
             config = config.with_object_scaled(*object_scales)
