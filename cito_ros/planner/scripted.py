@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 
 from cito_ros.model.simulator import FULL_PHYSICS
-from cito_ros.planner import tracking
+from cito_ros.planner import push_limits, tracking
 from cito_ros.planner.task import yaw_of
 from cito_ros.planner.tracking import JointPath
 from cito_ros.settings import ScriptedSettings, TrackingSettings
@@ -57,10 +57,12 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
     """(n_steps + 1, 3) plate-centre positions, world frame, and (n_steps + 1, 3) unit plate normals: from where
     the plate starts to standoff_m behind the object's face along the push, then through to where that
     face ends with the object at the target, both at contact_height_m above the object's centre. The normal
-    turns along the push during the approach and keeps it; with script.follow_face it is the pushed face's
-    instead, turning with the object's yaw from the start's to the target's (a flat plate pressed on a face
-    lines the face up with it: a plate along the push turns the cube to the push's direction, whatever the
-    target yaw)."""
+    turns along the push during the approach and keeps it; with script.follow_face, for a target at least
+    follow_face_margin_m inside the steady push reach, it is the pushed face's instead, turning with the object's
+    yaw from the start's to the target's (a flat plate pressed on a face lines the face up with it: a plate along
+    the push turns the cube to the push's direction, whatever the target yaw). Nearer that reach's edge, and beyond
+    it, the plate stays along the push: a strike throws the object along the plate's normal, and at the edge the arm
+    holds a turned plate only slowly (docs/results.md: The planner's scripts follow the face)."""
     scene, simulator = problem.simulator.scene, problem.simulator
     data = _at_start(problem)
     plate = data.site_xpos[scene.robot_site_id].copy()
@@ -71,7 +73,9 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
     direction = push if np.linalg.norm(push) > 1e-9 else data.site_xmat[scene.robot_site_id].reshape(3, 3)[:2, 2]
     along = np.r_[direction / np.linalg.norm(direction), 0.0]
     face0, turn = 0.0, 0.0
-    if script.follow_face:
+    follow_face = script.follow_face and push_limits.steady_reach_margin_m(
+        scene, problem.initial_state, problem.task.target_position_m) >= script.follow_face_margin_m
+    if follow_face:
         yaw0 = yaw_of(object_qpos[3:7])
         quarter = round(math.remainder(math.atan2(direction[1], direction[0]) - yaw0, 2 * math.pi) / (math.pi / 2))
         face0 = yaw0 + quarter * math.pi / 2  # the pushed face's inward normal
@@ -89,7 +93,7 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
             path[t] = plate + (before - plate) * _minimum_jerk(s / script.approach_fraction)
             continue
         sigma = _minimum_jerk((s - script.approach_fraction) / (script.push_end_fraction - script.approach_fraction))
-        if script.follow_face:  # the object's centre and yaw from the start's to the target's, the plate behind
+        if follow_face:  # the object's centre and yaw from the start's to the target's, the plate behind
             normals[t] = _along(face0 + sigma * turn)
             path[t] = start + sigma * (problem.task.target_position_m - start) + lift - \
                 (behind + (1.0 - sigma) * script.standoff_m) * normals[t]

@@ -95,9 +95,12 @@ class ScriptedSettings:
     ik_iterations: int = setting("least-squares iterations per simulation step", minimum=1)
     gain_scale: float = setting("the path is followed by the tracking controller with tracking.kp, kd times this",
                                 positive=True)
-    follow_face: bool = setting("the plate normal is the pushed face's, turning from the object's yaw to the "
-                                "target's during the push (false: along the push, which turns the object to the "
-                                "push's direction)")
+    follow_face: bool = setting("for a target at least follow_face_margin_m inside the steady push reach, the "
+                                "plate normal is the pushed face's, turning from the object's yaw to the target's "
+                                "during the push (false, or nearer that reach's edge: along the push, which turns "
+                                "the object to the push's direction)")
+    follow_face_margin_m: float = setting("the face is followed only for targets at least this far inside the "
+                                          "steady push reach (m)")
     variants: ScriptVariants = setting("further scripted starts where the first misses")
 
     def check(self, path: str) -> None:
