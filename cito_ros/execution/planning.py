@@ -42,6 +42,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
     return settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": iterations,
+        "stages.scripted.follow_face": True,
         "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(), "tracking.feed_forward": True,
         "tracking.speed_guard": SPEED_GUARD, "tracking.speed_horizon_s": executor.speed_horizon_s,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
