@@ -86,7 +86,7 @@ def _errors(model: PushModel, observed: Observed, stiff: TrackingSettings, frict
         return [math.inf]
     steps = np.clip(np.round((poses[:, 0] - start_s) / simulator.timestep_s).astype(int), 0, simulator.n_steps)
     position = motion.object_position_m[steps, :2]
-    yaw = np.array([yaw_of(quaternion) for quaternion in motion.object_quaternion[steps]])
+    yaw = yaw_of(motion.object_quaternion[steps])
     turn = np.abs(np.remainder(yaw - poses[:, 3] + np.pi, 2 * np.pi) - np.pi)
     return list((np.hypot(*(position - poses[:, 1:3]).T) / task.success_position_error_m) ** 2 +
                 (turn / task.success_orientation_error_rad) ** 2)

@@ -23,7 +23,7 @@ from cito_ros.execution.policy import Policy
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.model.simulator import Simulator
-from cito_ros.planner.builder import make_task
+from cito_ros.planner.builder import PushRequest, make_task, scene_config
 from cito_ros.planner.problem import PushProblem
 from cito_ros.planner.solvers.base import IterationMonitor
 from cito_ros.planner.solvers.ilqr import IlqrSolver, feedback_gains
@@ -183,9 +183,7 @@ def push_model(settings: Settings, goal: ExecuteGoal, object_scales: tuple[float
         _MODELS.clear()
         if kept is not None and kept[0] == settings:
             _MODELS[nominal] = kept
-        config = settings.scene if goal.scene is None else SceneConfig.load(goal.scene)
-        if object_scales != (1.0, 1.0):
-            config = config.with_object_scaled(*object_scales)
+        config = scene_config(settings, PushRequest(goal.contact_model, scene=goal.scene, object_scales=object_scales))
         _MODELS[key] = (settings, PushModel(settings, goal.contact_model, config,
                                             np.asarray(goal.target_position_m, dtype=float), goal.target_yaw_rad))
     return _MODELS[key][1]

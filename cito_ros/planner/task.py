@@ -23,10 +23,10 @@ def euler_angles(rotation: np.ndarray) -> np.ndarray:
     ])
 
 
-def yaw_of(quaternion: np.ndarray) -> float:
-    """The yaw (rad, about world z) of a unit quaternion (w, x, y, z)."""
-    w, x, y, z = quaternion
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+def yaw_of(quaternion: np.ndarray) -> float | np.ndarray:
+    """The yaw (rad, about world z) of a unit quaternion (w, x, y, z), or of each of an (..., 4) array of them."""
+    w, x, y, z = np.moveaxis(np.asarray(quaternion, dtype=float), -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def yaw_rotation(yaw_rad: float) -> np.ndarray:
