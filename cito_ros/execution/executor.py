@@ -32,15 +32,13 @@ import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over
 from cito_ros.execution.identify import Observed
-from cito_ros.execution.mpc import push_model
+from cito_ros.execution.mpc import SPEED_GUARD, push_model
 from cito_ros.execution.policy import Policy, Retreat, bias_torques
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.model.speed_guard import within_speed_limits
 from cito_ros.planner.results import tolerance_ratio
 from cito_ros.planner.task import yaw_of
 from cito_ros.settings import Settings
-
-SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
 
 
 class Phase(str, enum.Enum):
@@ -295,7 +293,8 @@ class Executor:
             ahead = self.phase is Phase.RETREATING and self.estimator.object_speed_m_s() < executor.rest_speed_m_s
             if self.phase is not Phase.PLANNING and not ahead and not (self.phase is Phase.PUSHING and executor.replan):
                 return None
-            state = self.estimator.state(self._joints, now_s)
+            state = self.estimator.state(self._joints, now_s,
+                                         self.estimator.object_speed_m_s() < executor.rest_speed_m_s)
             back_q = self.model.draw_back_q(state) if self.phase is Phase.PLANNING and not self._retreat else None
             if back_q is not None:  # the arm begins against the cube: drawn back first, its pushes start there
                 self.phase, self._home_q = Phase.RETREATING, back_q

@@ -10,9 +10,9 @@ import time
 
 import numpy as np
 
-from cito_ros.execution.executor import SPEED_GUARD, Ending, ExecuteGoal, Executor, Failure, Job, Work
+from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work
 from cito_ros.execution.identify import identify
-from cito_ros.execution.mpc import push_model, servo_gains
+from cito_ros.execution.mpc import push_model, servo_tracking
 from cito_ros.execution.policy import Policy
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
@@ -38,19 +38,15 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
     made with the servo, the next with the planner's stiff gains (gain_scale 1 /
     servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes."""
     executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
-    kp, kd = servo_gains(settings)
-    return settings.with_overrides({
+    return dataclasses.replace(settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": iterations,
         "stages.scripted.follow_face": True,
-        "tracking.kp": kp.tolist(), "tracking.kd": kd.tolist(), "tracking.feed_forward": True,
-        "tracking.speed_guard": SPEED_GUARD, "tracking.speed_horizon_s": executor.speed_horizon_s,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
         "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],
-        "stages.scripted.variants.gain_scale": [script.gain_scale / executor.servo_gain_scale, *variants.gain_scale],
-        "tracking.world_friction_scales": [float(v) for v in (worlds[0] if worlds else executor.world_friction_scales)],
-        "tracking.world_mass_scales": [float(v) for v in (worlds[1] if worlds else executor.world_mass_scales)]})
+        "stages.scripted.variants.gain_scale": [script.gain_scale / executor.servo_gain_scale, *variants.gain_scale]}),
+        tracking=servo_tracking(settings, worlds))
 
 
 def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
@@ -61,9 +57,10 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended. After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it."""
+    if job.kind == "replan":  # in the model the running push was planned in
+        return push_model(settings, goal, job.running.object_scales).replan(
+            job.now_s, job.state, job.running, settings.executor.replan_budget_s)
     model = push_model(settings, goal)
-    if job.kind == "replan":
-        return model.replan(job.now_s, job.state, job.running, settings.executor.replan_budget_s)
     executor = settings.executor
     scales, worlds = (1.0, 1.0), None
     if job.observed and executor.identify_friction_scales:

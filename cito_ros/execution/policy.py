@@ -15,6 +15,7 @@ bias forces (gravity, Coriolis): a robot that adds none gets u plus those, compu
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -33,6 +34,9 @@ class Policy:
     reference: np.ndarray        # (T + 1, nstate) x_ref at every step of the planner's model, T = N * steps
     sturdy: bool = False         # planned to reach the goal in the model and in the executor's worlds (PlanResult.
                                  # sturdy); a replan is not checked there
+    worst_world: float = math.inf  # the largest tolerance ratio at rest in the executor's worlds, the reference
+                                 # tracked by its servo from its start (PushModel.worst_world)
+    object_scales: tuple[float, float] = (1.0, 1.0)  # the cube's friction and mass in the model it was planned in
 
     @property
     def end_s(self) -> float:
