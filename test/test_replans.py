@@ -1,0 +1,80 @@
+"""Replanning while a push runs (MPC): a replan's policy takes effect no sooner than its compute time, it is taken
+only where it keeps the push as sturdy in the executor's worlds, and it starts from a cube at rest held still. Real
+MuJoCo, real iLQR."""
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from cito_ros.execution.estimator import StateEstimator
+from cito_ros.execution.executor import Phase
+from cito_ros.execution.planning import compute, work_in_line
+from cito_ros.execution.policy import Policy
+from cito_ros.execution.world import JointReading, PoseReading
+from cito_ros.model.scene import start_configuration
+from test_execution import deliver, push_under_way, started
+
+
+def test_a_cube_at_rest_is_put_in_the_state_still_at_its_resting_pose(settings, scenes):
+    """Fitted through the camera's noise, the last poses of a cube at rest give it a velocity; the state the
+    replans start from has it at rest where the mean of its poses puts it."""
+    scene = scenes["vscm"]
+    estimator = StateEstimator(scene, scene.initial_state(start_configuration(7)))
+    rng = np.random.default_rng(0)
+    for k in range(10):
+        yaw = 0.1 + rng.normal(0, 0.01)
+        estimator.add_pose(PoseReading(k / 30, np.array([1.0, 0.02, 0.3]) + rng.normal(0, 0.001, 3),
+                                       np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])))
+    joints = JointReading(0.3, start_configuration(7), np.zeros(7), np.zeros(7))
+    moving, still = (estimator.state(joints, 0.3, at_rest) for at_rest in (False, True))
+    assert np.abs(scene.object_qvel(moving)).max() > 0 and not np.any(scene.object_qvel(still))
+    (x, y), yaw = estimator.resting_pose()
+    assert scene.object_qpos(still)[:2] == pytest.approx([x, y], abs=1e-12)
+    assert 2 * math.atan2(scene.object_qpos(still)[6], scene.object_qpos(still)[3]) == pytest.approx(yaw, abs=1e-12)
+
+
+def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_was_computed_from(settings):
+    """In lock step the world's clock stands still while a plan is computed; the plan waits on the world's clock
+    for as long as it took, the arm driven by the running policy meanwhile (replans on: they are plans too)."""
+    executor, world = started(settings.with_overrides({"executor.replan": True}))
+    works, active = [], []
+    while executor.phase is not Phase.DONE and world.time_s < executor.time_limit_s + 5:  # it ends by its limit
+        job = executor.job(world.time_s)
+        work = work_in_line(executor, world.time_s)
+        if work is not None:
+            works.append((job.now_s, work))
+        before = executor.policy
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+        if executor.policy is not before:
+            active.append((world.time_s - world.timestep_s, executor.policy))
+    assert executor.ending is not None and works and len(works) >= 3  # the plan, and replans
+    assert all(work.effective_s >= computed + work.compute_s for computed, work in works)
+    effective = {id(work.policy): work.effective_s for _, work in works}
+    assert active and all(t >= effective[id(policy)] for t, policy in active)
+
+
+def test_a_push_is_replanned_while_it_runs_only_with_replans_on(settings):
+    for replan in (False, True):
+        executor, world = push_under_way(settings.with_overrides({"executor.replan": replan}))
+        job = executor.job(world.time_s)
+        assert (job is not None and job.kind == "replan") if replan else job is None
+
+
+def test_a_replan_is_taken_only_if_the_servo_would_end_it_as_near_the_goal_in_the_executors_worlds_as_the_push(
+        settings):
+    """The same replan from the same measured state: taken where the running push's worst world is unknown,
+    not where it is half the replan's (tolerance ratios at rest, tracked by the servo: PushModel.worst_world)."""
+    replanning = settings.with_overrides({"executor.replan": True})
+    executor, world = push_under_way(replanning)
+    job = executor.job(world.time_s)
+    assert 0 < job.running.worst_world < math.inf
+
+    def replanned(running_worst_world: float):
+        running = dataclasses.replace(job.running, worst_world=running_worst_world)
+        return compute(replanning, executor.goal, dataclasses.replace(job, running=running))
+
+    taken = replanned(math.inf)
+    assert isinstance(taken, Policy) and 0 < taken.worst_world < math.inf
+    assert replanned(0.5 * taken.worst_world) is None
