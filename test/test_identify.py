@@ -15,8 +15,11 @@ FRICTIONS = (0.5, 1.0, 1.5)
 
 def observed_push(settings, friction_scale: float):
     """The first push of an execution in a world whose cube's friction is friction_scale times the model's, as
-    the executor recorded it once the cube came to rest."""
-    executor, world = started(settings.with_overrides({"executor.max_pushes": 1}), Mismatch("", friction_scale))
+    the executor recorded it once the cube came to rest. Without replans: in lock step their compute times pass on
+    the world's clock, so the push they make varies from run to run (after other tests, the fit came out 1.0 for
+    the x1.5 world in 2 of 3 runs); this is the fit of one push as planned."""
+    executor, world = started(settings.with_overrides({"executor.max_pushes": 1, "executor.replan": False}),
+                              Mismatch("", friction_scale))
     while not executor.observed and executor.phase is not Phase.DONE:
         work_in_line(executor, world.time_s)
         world.step(executor.command(world.time_s))

@@ -7,25 +7,19 @@ import math
 import numpy as np
 import pytest
 
-from cito_ros.execution.estimator import StateEstimator
 from cito_ros.execution.executor import Phase
 from cito_ros.execution.planning import compute, work_in_line
 from cito_ros.execution.policy import Policy
-from cito_ros.execution.world import JointReading, PoseReading
+from cito_ros.execution.world import JointReading
 from cito_ros.model.scene import start_configuration
-from test_execution import deliver, push_under_way, started
+from test_execution import deliver, push_under_way, seen_at_rest, started
 
 
 def test_a_cube_at_rest_is_put_in_the_state_still_at_its_resting_pose(settings, scenes):
     """Fitted through the camera's noise, the last poses of a cube at rest give it a velocity; the state the
     replans start from has it at rest where the mean of its poses puts it."""
     scene = scenes["vscm"]
-    estimator = StateEstimator(scene, scene.initial_state(start_configuration(7)))
-    rng = np.random.default_rng(0)
-    for k in range(10):
-        yaw = 0.1 + rng.normal(0, 0.01)
-        estimator.add_pose(PoseReading(k / 30, np.array([1.0, 0.02, 0.3]) + rng.normal(0, 0.001, 3),
-                                       np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])))
+    estimator = seen_at_rest(scene)
     joints = JointReading(0.3, start_configuration(7), np.zeros(7), np.zeros(7))
     moving, still = (estimator.state(joints, 0.3, at_rest) for at_rest in (False, True))
     assert np.abs(scene.object_qvel(moving)).max() > 0 and not np.any(scene.object_qvel(still))

@@ -186,8 +186,7 @@ class Executor:
         if self.phase is Phase.RETREATING and now_s >= self._retreat.end_s:
             self.phase, self._hold_q = Phase.PLANNING, self._home_q.copy()
             # judged again with the arm away: the judgement after the push can disagree (docs/ros.md)
-            if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s and \
-                    self._succeeded(*self.errors(now_s), ", once the arm drew back"):
+            if self.cube_at_rest and self._succeeded(*self.errors(now_s), ", once the arm drew back"):
                 return
         # a push planned during the retreat waits for its end; if the cube has moved since it was planned (the
         # retreating arm brushed it), it is dropped, and the next job plans it again from where the cube is
@@ -209,7 +208,7 @@ class Executor:
         if self.phase is Phase.PUSHING and now_s >= self._push_end_s:  # held where it is: no jump to a reference
             self.phase, self._hold_q, self._settle_since_s = Phase.SETTLING, joints.q.copy(), now_s
         if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
-                self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
+                self.cube_at_rest:
             position, orientation = self.errors(now_s)  # at rest: the rest window's mean
             start, arm, cube = self._recording
             if len(arm) > 1 and cube:  # what the push showed of the cube (identify)
@@ -268,9 +267,14 @@ class Executor:
         """The cube's position and yaw error against the goal, as the camera sees it now (at rest: averaged)."""
         return self.goal.errors(*self.object_pose(now_s))
 
+    @property
+    def cube_at_rest(self) -> bool:
+        """Whether the camera sees the cube at rest: its estimated speed below executor.rest_speed_m_s."""
+        return self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s
+
     def object_pose(self, now_s: float) -> tuple[np.ndarray, float]:
         """The cube's (x, y) and yaw as the camera sees it now: the rest window's mean when it is at rest."""
-        if self.estimator.object_speed_m_s() < self.settings.executor.rest_speed_m_s:
+        if self.cube_at_rest:
             return self.estimator.resting_pose()
         return self.estimator.object_pose(now_s)
 
@@ -290,11 +294,10 @@ class Executor:
                     self.model.control_period_s >= self._push_end_s:
                 return None
             # the next push is planned while the arm retreats, from where the retreat ends, once the cube is at rest
-            ahead = self.phase is Phase.RETREATING and self.estimator.object_speed_m_s() < executor.rest_speed_m_s
+            ahead = self.phase is Phase.RETREATING and self.cube_at_rest
             if self.phase is not Phase.PLANNING and not ahead and not (self.phase is Phase.PUSHING and executor.replan):
                 return None
-            state = self.estimator.state(self._joints, now_s,
-                                         self.estimator.object_speed_m_s() < executor.rest_speed_m_s)
+            state = self.estimator.state(self._joints, now_s, self.cube_at_rest)
             back_q = self.model.draw_back_q(state) if self.phase is Phase.PLANNING and not self._retreat else None
             if back_q is not None:  # the arm begins against the cube: drawn back first, its pushes start there
                 self.phase, self._home_q = Phase.RETREATING, back_q

@@ -33,7 +33,7 @@ class Policy:
     gains: np.ndarray            # (N, 7, nx) K per knot, nx = 2 nv
     reference: np.ndarray        # (T + 1, nstate) x_ref at every step of the planner's model, T = N * steps
     sturdy: bool = False         # planned to reach the goal in the model and in the executor's worlds (PlanResult.
-                                 # sturdy); a replan is not checked there
+                                 # sturdy, as the planner's search judged it; a replan's is not asked: only pushes count)
     worst_world: float = math.inf  # the largest tolerance ratio at rest in the executor's worlds, the reference
                                  # tracked by its servo from its start (PushModel.worst_world)
     object_scales: tuple[float, float] = (1.0, 1.0)  # the cube's friction and mass in the model it was planned in
