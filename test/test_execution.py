@@ -261,8 +261,10 @@ def ending_at(executor: Executor, policy: Policy, position_m, yaw_rad: float, st
 def test_a_next_push_that_would_turn_a_cube_at_the_place_to_the_goal_is_made(settings):
     """The cube rests at the goal's place but 0.25 rad from its yaw: a next push predicted to leave it 1 cm off
     and 0.05 rad from the yaw brings it closer (both errors against their tolerances) and is made; one predicted
-    to leave it where it is, or 0.5 cm off and 0.3 rad from the yaw, is not."""
-    for (off_m, yaw_error_rad), made in (((0.01, 0.05), True), ((0.0, 0.25), False), ((0.005, 0.3), False)):
+    to leave it where it is, 0.5 cm off and 0.3 rad from the yaw, or turned by only 0.02 rad (closer, but by no
+    more than the camera's noise moves a cube that never was touched) is not."""
+    for (off_m, yaw_error_rad), made in (((0.01, 0.05), True), ((0.0, 0.25), False), ((0.005, 0.3), False),
+                                         ((0.0, 0.23), False)):
         (x, y), yaw = settings.scene.object.position_m, settings.scene.object.yaw_rad  # where the cube rests
         goal = dataclasses.replace(GOAL, target_position_m=(x, y), target_yaw_rad=yaw + 0.25)
         turned, world = started(settings, goal=goal)

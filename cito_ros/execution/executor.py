@@ -13,7 +13,7 @@ held at the push's end, or where it is once the cube is executor.off_path_m off 
 come to rest; then the push is judged by the camera: at the goal, done; else, while pushes and time are left,
 `retreating`: the arm goes back along a minimum-jerk path to where the execution started, and a new push is planned
 from there meanwhile, made once the arm is there and only if the model predicts it brings the cube closer (both
-errors against their tolerances)),
+errors against their tolerances) and moves it by more than executor.moved_fraction of them),
 `done`. An execution begun with the arm against the cube (where the last one ended or was cancelled) begins
 `retreating` to the start pose of settings.beta. Measurements older than executor.stale_after_s, a cancel, the time
 limit, a cube seen tipped past its edge or a push that cannot be planned end the execution with the arm held where
@@ -329,18 +329,22 @@ class Executor:
                 return None
             if job.kind == "plan" and self.pushes:
                 # a push that would not bring the cube closer (both errors against their tolerances: a cube
-                # at the place but turned is brought closer by a push that turns it) is not made, nor left to
-                # run out the time
+                # at the place but turned is brought closer by a push that turns it), or would hardly move it
+                # (a plan that never touches a cube already within its waypoint's tolerances is "sturdy" there:
+                # five such pushes ran out the time), is not made, nor left to run out the time
                 position, orientation = self.goal.errors(*job.object_pose)
-                cube = self.model.scene.object_qpos(outcome.final_state)
+                start, cube = (self.model.scene.object_qpos(s) for s in (outcome.reference[0], outcome.final_state))
                 predicted = self.goal.errors(cube[:2], yaw_of(cube[3:7]))
+                moved = pose_errors(start[:2], yaw_of(start[3:7]), cube[:2], yaw_of(cube[3:7]))
                 task = self.settings.task
-                if tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task):
+                if tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task) or \
+                        tolerance_ratio(*moved, task) <= self.settings.executor.moved_fraction:
                     self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                         f"{100 * position:.2f} cm and {orientation:.3f} rad from the "
                                                         f"goal, and the best push found from the near face would "
                                                         f"leave it {100 * predicted[0]:.2f} cm and "
-                                                        f"{predicted[1]:.3f} rad off",
+                                                        f"{predicted[1]:.3f} rad off, moving it {100 * moved[0]:.2f} "
+                                                        f"cm and {moved[1]:.3f} rad",
                               None if self._joints is None else self._joints.q, "no_closer_push")
                     return None
             effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start

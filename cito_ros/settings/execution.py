@@ -106,7 +106,8 @@ class ExecutorSettings:
     world_mass_scales: tuple[float, ...] = setting("and tracking.world_mass_scales for them", positive=True)
     moved_fraction: float = setting("a push planned during the retreat is planned again from where the cube is if "
                                     "it has moved since by more than this fraction of the task's tolerances (the "
-                                    "larger of position and yaw)", positive=True)
+                                    "larger of position and yaw); and a next push the model predicts moves it by "
+                                    "no more than this is not made (a plan that never touches it)", positive=True)
     identify_friction_scales: tuple[float, ...] = setting(
         "after a push, the cube's frictions among these scales of the model's whose simulation, the arm driven "
         "along its measured path, moves the cube about as the camera saw it (every push so far) are the possible "
