@@ -37,3 +37,29 @@ def test_the_closed_loop_report_splits_the_successes_by_the_first_push_s_sturdin
     assert "Closed loop inside the steady reach: the first push planned sturdy (PlanResult.sturdy) in 2 episodes, 1 " \
         "of them successes; not sturdy in 3, 1 successes. The misses by the executor's cause: no closer push 2, " \
         "pushes spent 1, invalid request 1." in closed_loop.markdown(summary)
+
+
+def test_a_missed_cube_is_placed_short_of_past_beside_or_turned_at_its_goal_along_the_push(settings):
+    """The push runs from (1.0, 0.0) towards (1.1, 0.1): a cube resting 3 cm before the goal along it is short, 3 cm
+    beyond it past, 3 cm across it beside, 1 cm off (within the 2 cm tolerance) turned; the report counts the misses'
+    places and says them."""
+    along, across = (0.5 ** 0.5, 0.5 ** 0.5), (-(0.5 ** 0.5), 0.5 ** 0.5)
+
+    def record(offset, sign: float, error_m: float, success: bool = False, tipped: bool = False) -> dict:
+        final = [1.1 + sign * error_m * offset[0], 0.1 + sign * error_m * offset[1], 0.0]
+        return {"world": "w", "mode": "closed_loop", "steady_reach_margin_m": 0.05, "success": success,
+                "success_tight": success, "position_error_m": error_m, "max_joint_speed_ratio": 0.9, "pushes": 1,
+                "replans": 0, "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped,
+                "pushes_cut": 0, "first_push_sturdy": True, "cause": "no_closer_push",
+                "start_pose": [1.0, 0.0, 0.1], "target_pose": [1.1, 0.1, 0.3], "final_pose": final}
+
+    records = [record(along, -1, 0.03), record(along, 1, 0.03), record(across, 1, 0.03), record(across, -1, 0.03),
+               record(along, 1, 0.01), record(along, 1, 0.005, success=True), record(along, 1, 0.2, tipped=True)]
+    places = [closed_loop.place(r, settings.task) for r in records]
+    assert places == ["short", "past", "beside", "beside", "turned", "goal", "tipped"]
+    summary = closed_loop.report([{**r, "place": p} for r, p in zip(records, places, strict=True)])
+    assert summary["explained"]["steady"]["miss_places"] == {"beside": 2, "short": 1, "past": 1, "turned": 1,
+                                                             "tipped": 1}
+    assert "Where their cubes came to rest against the goal, along the push from where the cube started: beside it " \
+        "2, short of it 1, past it (a pull back needed) 1, at the place but turned 1, tipped over 1." in \
+        closed_loop.markdown(summary)

@@ -59,7 +59,7 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
     goal = targets.Goal(0, 7.0, (1.09, 0.0), 0.0, 0.10, 0.0)
     world = closed_loop.WORLDS[3]
     opened = closed_loop.episode(goal, world, "open_loop", "vscm", settings)
-    assert not opened["success"], opened
+    assert not opened["success"] and opened["place"] in ("short", "past", "beside", "turned"), opened
     domain = 171 + os.getpid() % 20
     node = spawn("cito-executor-node", domain, f"node.bag_directory:={tmp_path}")
     operator = Operator(domain)
@@ -69,7 +69,7 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
                                           "max_joint_speed_ratio", "ending", "message", "phases")}
         assert closed["success"], verdict
         assert closed["max_joint_speed_ratio"] <= 1.0, verdict
-        assert closed["cause"] == "succeeded" and closed["pushes"] >= 1, verdict
+        assert closed["cause"] == "succeeded" and closed["pushes"] >= 1 and closed["place"] == "goal", verdict
         assert node.poll() is None
     finally:
         operator.close()

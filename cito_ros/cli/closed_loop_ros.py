@@ -62,19 +62,22 @@ def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, mode
         stop(sim)
     task, result, upright = settings.task, outcome.result, not tipped_over(scene, outcome.max_tilt_rad)
     rate = result.replan_rate_hz or math.nan
-    return {"goal": goal.index, "world": world.name, "mode": "closed_loop", "contact_model": model,
-            "offset_m": list(mismatch.offset_m), "offset_yaw_rad": mismatch.offset_yaw_rad,
-            "steady_reach_margin_m": margin_m,
-            "success": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad,
-                               upright=upright),
-            "success_tight": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad,
-                                     TIGHT_YAW_RAD, upright),
-            "position_error_m": outcome.position_error_m, "orientation_error_rad": outcome.orientation_error_rad,
-            "at_rest": outcome.at_rest,
-            "max_joint_speed_ratio": float(np.max(outcome.max_joint_speed / scene.velocity_limit)),
-            "max_tilt_rad": outcome.max_tilt_rad, "tipped": not upright,
-            "duration_s": outcome.round_trip_s, "ending": f"status {result.status}", "message": result.message,
-            "pushes": int(result.pushes), "first_push_sturdy": bool(result.first_push_sturdy) if result.pushes else None,
-            "cause": result.cause, "replans": int(result.replans), "replan_rate_hz": rate,
-            "replan_compute_s": 1.0 / rate, "plan_compute_s": math.nan, "phases": list(outcome.phases),
-            "bag_path": result.bag_path}
+    record = {"goal": goal.index, "world": world.name, "mode": "closed_loop", "contact_model": model,
+              "offset_m": list(mismatch.offset_m), "offset_yaw_rad": mismatch.offset_yaw_rad,
+              "steady_reach_margin_m": margin_m,
+              "success": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad,
+                                 upright=upright),
+              "success_tight": at_goal(task, outcome.at_rest, outcome.position_error_m, outcome.orientation_error_rad,
+                                       TIGHT_YAW_RAD, upright),
+              "position_error_m": outcome.position_error_m, "orientation_error_rad": outcome.orientation_error_rad,
+              "at_rest": outcome.at_rest,
+              "max_joint_speed_ratio": float(np.max(outcome.max_joint_speed / scene.velocity_limit)),
+              "max_tilt_rad": outcome.max_tilt_rad, "tipped": not upright,
+              "duration_s": outcome.round_trip_s, "ending": f"status {result.status}", "message": result.message,
+              "pushes": int(result.pushes),
+              "first_push_sturdy": bool(result.first_push_sturdy) if result.pushes else None,
+              "cause": result.cause, "replans": int(result.replans), "replan_rate_hz": rate,
+              "replan_compute_s": 1.0 / rate, "plan_compute_s": math.nan, "phases": list(outcome.phases),
+              "bag_path": result.bag_path, "final_pose": list(outcome.final_pose),
+              **closed_loop.poses(goal, mismatch, settings)}
+    return {**record, "place": closed_loop.place(record, task)}

@@ -55,6 +55,7 @@ class Episode:
     pushes_cut: int = 0              # pushes cut short with the cube off their path (executor.off_path_m)
     first_push_sturdy: bool | None = None  # its plan reached the goal in the executor's worlds (None: no push)
     cause: str = ""                  # closed loop: why the executor ended (Executor.cause)
+    final_pose: tuple[float, ...] = ()  # the world's cube at rest: x, y (m) and yaw (rad)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -84,13 +85,13 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
             plan_compute_s = work.compute_s
         step(executor.command(world.time_s))
     duration_s = world.time_s
-    position, orientation, at_rest = _settle(world, lambda: step(executor.command(world.time_s)), goal,
-                                               settings.task.rest_speed_m_s)
+    position, orientation, at_rest, pose = _settle(world, lambda: step(executor.command(world.time_s)), goal,
+                                                     settings.task.rest_speed_m_s)
     seconds = executor.replan_seconds
     return _episode("closed_loop", settings, position, orientation, at_rest, watch, duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
                     float(np.median(seconds)) if seconds else math.nan, plan_compute_s, executor.pushes_cut,
-                    executor.first_push_sturdy, executor.cause)
+                    executor.first_push_sturdy, executor.cause, pose)
 
 
 def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
@@ -121,9 +122,9 @@ def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
         joints = world.joints()
         step(hold_torques(world.scene, data, kp, kd, trajectory.q[-1], joints.q, joints.qdot))
 
-    position, orientation, at_rest = _settle(world, hold, goal, settings.task.rest_speed_m_s)
+    position, orientation, at_rest, pose = _settle(world, hold, goal, settings.task.rest_speed_m_s)
     return _episode("open_loop", settings, position, orientation, at_rest, watch, duration_s, "executed",
-                    result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s)
+                    result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s, 0, None, "", pose)
 
 
 class Watch:
@@ -160,12 +161,15 @@ def _episode(mode: str, settings: Settings, position: float, orientation: float,
                    at_rest, watch.max_joint_speed_ratio, watch.max_tilt_rad, not upright, *rest)
 
 
-def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal, rest_speed_m_s: float) -> tuple[float, float, bool]:
+def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal, rest_speed_m_s: float
+            ) -> tuple[float, float, bool, tuple[float, float, float]]:
     """hold() step by step until the cube is at rest in the world (no point faster than rest_speed_m_s, at most
-    REST_WAIT_S); its true errors there."""
+    REST_WAIT_S); its true errors there, whether it is at rest, and its true x, y and yaw."""
     waited = 0.0
     while world.object_speed_m_s() >= rest_speed_m_s and waited < REST_WAIT_S:
         hold()
         waited += world.timestep_s
     position, quaternion = world.true_object_pose()
-    return (*goal.errors(position, yaw_of(quaternion)), world.object_speed_m_s() < rest_speed_m_s)
+    yaw = yaw_of(quaternion)
+    return (*goal.errors(position, yaw), world.object_speed_m_s() < rest_speed_m_s,
+            (float(position[0]), float(position[1]), yaw))

@@ -75,6 +75,7 @@ class Outcome:
     max_tilt_rad: float              # the true cube's, over the execution and the wait for rest
     phases: tuple[str, ...]          # every phase the feedback showed, in order of first appearance
     round_trip_s: float              # from the goal sent to its result
+    final_pose: tuple[float, float, float]  # the true cube there: x, y (m) and yaw (rad)
 
 
 class Operator:
@@ -173,7 +174,7 @@ class Operator:
         position_error, orientation_error = goal.errors(position[:2], yaw)
         phases = tuple(dict.fromkeys(f.phase for f in self.feedback))
         return Outcome(result, position_error, orientation_error, at_rest, speeds, self.max_tilt_rad, phases,
-                       round_trip)
+                       round_trip, (float(position[0]), float(position[1]), float(yaw)))
 
     def true_speed_m_s(self) -> float:
         """The true cube's centre speed over the last two true poses (inf before two)."""

@@ -40,6 +40,8 @@ OFFSET_M, OFFSET_YAW_RAD = 0.015, 0.1
 SENSING = dict(pose_noise_m=0.001, yaw_noise_rad=0.01, latency_s=0.03)
 WORLDS = tuple(Mismatch(f"friction x{f:g}, mass x{m:g}", f, m, **SENSING) for f in (0.5, 1.5) for m in (0.5, 2.0))
 MODES = ("open_loop", "closed_loop")
+PLACES = {"short": "short of it", "past": "past it (a pull back needed)", "beside": "beside it",
+          "turned": "at the place but turned", "tipped": "tipped over"}
 
 
 def world_for(mismatch: Mismatch, goal: Goal) -> Mismatch:
@@ -56,6 +58,15 @@ def steady_margin_m(goal: Goal, settings: Settings) -> float:
     return push_limits.steady_reach_margin_m(posed.scene, posed.initial_state, goal.target_position_m)
 
 
+def poses(goal: Goal, world_mismatch: Mismatch, settings: Settings) -> dict[str, list[float]]:
+    """An episode's record of where its cube truly starts (the scene's pose plus the world's offset) and its goal:
+    x, y (m) and yaw (rad) each."""
+    told = settings.scene.object
+    return {"start_pose": [told.position_m[0] + world_mismatch.offset_m[0], told.position_m[1] +
+                           world_mismatch.offset_m[1], told.yaw_rad + world_mismatch.offset_yaw_rad],
+            "target_pose": [*map(float, goal.target_position_m[:2]), float(goal.target_yaw_rad)]}
+
+
 def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Settings) -> dict[str, Any]:
     """One goal in one world, open or closed loop: the episode's record."""
     world_mismatch = world_for(mismatch, goal)
@@ -66,9 +77,11 @@ def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Set
         result = run_open_loop(settings, target, world, (tuple(told.position_m), told.yaw_rad))
     else:
         result = run_closed_loop(settings, target, world)
-    return {"goal": goal.index, "world": mismatch.name, "mode": mode, "contact_model": model,
-            "offset_m": list(world_mismatch.offset_m), "offset_yaw_rad": world_mismatch.offset_yaw_rad,
-            "steady_reach_margin_m": steady_margin_m(goal, settings), **result.as_dict()}
+    record = {"goal": goal.index, "world": mismatch.name, "mode": mode, "contact_model": model,
+              "offset_m": list(world_mismatch.offset_m), "offset_yaw_rad": world_mismatch.offset_yaw_rad,
+              "steady_reach_margin_m": steady_margin_m(goal, settings), **poses(goal, world_mismatch, settings),
+              **result.as_dict()}
+    return {**record, "place": place(record, settings.task)}
 
 
 def jobs(goals: list[Goal], model: str, settings: Settings, worlds=WORLDS) -> list:
@@ -80,6 +93,22 @@ def _stats(values: list[float]) -> dict[str, float | None]:
     values = [v for v in values if math.isfinite(v)]
     return {"median": float(statistics.median(values)) if values else None,
             "p90": float(np.percentile(values, 90)) if values else None}
+
+
+def place(record: dict[str, Any], task) -> str:
+    """Where an episode's cube came to rest against its goal, in the frame of the push from where it truly started:
+    "goal" (a success); "tipped"; "turned" (within the position tolerance, the yaw not); else "beside" (more across
+    the push than along it), "past" (beyond the goal: only a pull back, a push on another face, brings it back) or
+    "short"."""
+    if record["success"] or record["tipped"]:
+        return "goal" if record["success"] else "tipped"
+    if record["position_error_m"] < task.success_position_error_m:
+        return "turned"
+    start, target, final = (np.asarray(record[key][:2]) for key in ("start_pose", "target_pose", "final_pose"))
+    along = (target - start) / max(float(np.linalg.norm(target - start)), 1e-9)
+    off = final - target
+    ahead, across = float(off @ along), float(along[0] * off[1] - along[1] * off[0])
+    return "beside" if abs(across) > abs(ahead) else "past" if ahead > 0 else "short"
 
 
 def report(records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -113,7 +142,9 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                 "sturdy": {kind: {"episodes": sum(r["first_push_sturdy"] is flag for r in rows),
                                   "success": sum(r["success"] and r["first_push_sturdy"] is flag for r in rows)}
                            for kind, flag in (("sturdy", True), ("not_sturdy", False))},
-                "miss_causes": dict(Counter(r["cause"] for r in rows if not r["success"]).most_common())}
+                "miss_causes": dict(Counter(r["cause"] for r in rows if not r["success"]).most_common()),
+                "miss_places": dict(Counter(r["place"] for r in rows if not r["success"] and "place" in r)
+                                    .most_common())}
     return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]),
             "replan_compute_s": _stats([r["replan_compute_s"] for r in closed]),
             "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None,
@@ -159,10 +190,12 @@ def markdown(summary: dict[str, Any]) -> str:
     for name, e in summary.get("explained", {}).items():
         sturdy, fragile = e["sturdy"]["sturdy"], e["sturdy"]["not_sturdy"]
         causes = ", ".join(f"{cause.replace('_', ' ')} {n}" for cause, n in e["miss_causes"].items())
+        places = ", ".join(f"{PLACES[place]} {n}" for place, n in e.get("miss_places", {}).items())
         lines.append(f"Closed loop {zone_names[name]}: the first push planned sturdy (PlanResult.sturdy) in "
                      f"{sturdy['episodes']} episodes, {sturdy['success']} of them successes; not sturdy in "
                      f"{fragile['episodes']}, {fragile['success']} successes. The misses by the executor's cause: "
-                     f"{causes or 'none'}.")
+                     f"{causes or 'none'}." + (f" Where their cubes came to rest against the goal, along the push "
+                                              f"from where the cube started: {places}." if places else ""))
     rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
     if rate["median"] is not None:
         lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "
