@@ -1,13 +1,13 @@
 """Receding-horizon replanning from the measured state (MPC), and the policy of a plan.
 
-`PushModel` is the planner's model of one push for the executor: the scene with the cube where it was
-measured when the push was planned, the task, and the cost the replans minimize (the physical pipeline's
-stage without the virtual force that every start runs after its first: its contact, joint-limit and
-object-velocity terms). `policy` turns knot torques into a `Policy`: their rollout in the model from a state
-is the reference, and the feedback gains come from iLQR's backward pass there. `replan` is one MPC step: the
-push from the estimated state to the end of the push, in whole knots, warm-started from the running policy
-shifted in time, for a few iLQR iterations within a time budget; its gains are those of the last backward
-pass whose step was kept.
+`PushModel` is the planner's model of a goal's pushes for the executor: the scene, the task of each push (to the
+goal, or to the waypoint it was planned to: the replans of a push keep its target), and the cost the replans
+minimize (the physical pipeline's stage without the virtual force that every start runs after its first: its
+contact, joint-limit and object-velocity terms). `policy` turns knot torques into a `Policy`: their rollout in
+the model from a state is the reference, and the feedback gains come from iLQR's backward pass there. `replan` is
+one MPC step: the push from the estimated state to the end of the push, in whole knots, warm-started from the
+running policy shifted in time, for a few iLQR iterations within a time budget; its gains are those of the last
+backward pass whose step was kept.
 """
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, make_task, scene_config
 from cito_ros.planner.problem import PushProblem
 from cito_ros.planner.results import tolerance_ratio
+from cito_ros.planner.task import PushTask
 from cito_ros.planner.solvers.base import IterationMonitor
 from cito_ros.planner.solvers.ilqr import IlqrSolver, feedback_gains
 from cito_ros.planner.stages import stage_cost, touch_profile
@@ -71,7 +72,18 @@ class PushModel:
         self.servo_gains = servo_gains(settings)
         self.servo_tracking = servo_tracking(settings)
         self._simulators: dict[int, Simulator] = {}
+        self._tasks: dict[tuple, PushTask] = {}
         self._data = mujoco.MjData(self.scene.model)
+
+    def task_to(self, target: tuple[tuple[float, float], float] | None) -> PushTask:
+        """The push's task: to `target` ((x, y), yaw: a waypoint), or to the goal (None)."""
+        if target is None:
+            return self.task
+        (x, y), yaw = target
+        key = (float(x), float(y), float(yaw))
+        if key not in self._tasks:
+            self._tasks[key] = make_task(self.scene, self.resting_state, np.array([x, y]), yaw, self.settings)
+        return self._tasks[key]
 
     def draw_back_q(self, state: np.ndarray) -> np.ndarray | None:
         """The scene's start pose (settings.beta) when the arm in `state` is within executor.start_clearance_m of
@@ -94,39 +106,43 @@ class PushModel:
                                                 nthread=self.settings.gradient.threads)
         return self._simulators[knots]
 
-    def problem(self, state: np.ndarray, knots: int, torques: np.ndarray) -> PushProblem:
-        """The push from `state` over `knots` knots without the virtual force, its contact term from where
-        `torques` first touch the cube."""
+    def problem(self, state: np.ndarray, knots: int, torques: np.ndarray, task: PushTask) -> PushProblem:
+        """The push to `task` from `state` over `knots` knots without the virtual force, its contact term from
+        where `torques` first touch the cube."""
         simulator = self.simulator(knots)
         settings, weights = self.settings, getattr(self.settings.weights, self.scene.contact_model.name)
         stage = list(settings.stages.physical)[REPLAN_STAGE]
-        bare = PushProblem(simulator, state, self.task, stage_cost(settings, weights, False, 0.0, None, 0.0, 0.0),
+        bare = PushProblem(simulator, state, task, stage_cost(settings, weights, False, 0.0, None, 0.0, 0.0),
                            settings.gradient, settings.task.position_error_scale_min_m)
         z = bare.with_torques(torques)
         touch = touch_profile(bare, z, settings.stages.touch_force_N)
         cost = stage_cost(settings, weights, False, stage.contact_weight, touch, stage.joint_speed_weight,
                           stage.joint_position_weight)
-        problem = PushProblem(simulator, state, self.task, cost, settings.gradient,
+        problem = PushProblem(simulator, state, task, cost, settings.gradient,
                               settings.task.position_error_scale_min_m)
         rollout = bare.evaluate(z)  # the same rollout under this cost: simulated once
         problem.remember(z, rollout.states, rollout.sensordata, rollout.warnings)
         return problem
 
-    def worst_world(self, simulator: Simulator, state: np.ndarray, reference) -> float:
-        """The largest tolerance_ratio at rest of `reference` (a Trajectory of `simulator`'s horizon) tracked by the
-        servo from `state` (servo_tracking) in each world of executor.world_*_scales (below 1: sturdy there)."""
-        errors = tracking.world_errors(simulator, state, reference, self.servo_tracking, self.task, (0.0, 0.0))
+    def worst_world(self, simulator: Simulator, state: np.ndarray, reference, task: PushTask) -> float:
+        """The largest tolerance_ratio at rest against `task` of `reference` (a Trajectory of `simulator`'s
+        horizon) tracked by the servo from `state` (servo_tracking) in each world of executor.world_*_scales (below
+        1: sturdy there)."""
+        errors = tracking.world_errors(simulator, state, reference, self.servo_tracking, task, (0.0, 0.0))
         return max((tolerance_ratio(*error, self.settings.task) for error in errors), default=0.0)
 
     def policy(self, start_s: float, state: np.ndarray, torques: np.ndarray, gains: np.ndarray | None = None,
-               problem: PushProblem | None = None, worst_world: float | None = None) -> Policy:
-        """The policy of knot torques from `state` at start_s: their rollout is the reference. Its gains on the
+               problem: PushProblem | None = None, worst_world: float | None = None,
+               target: tuple[tuple[float, float], float] | None = None) -> Policy:
+        """The policy of knot torques from `state` at start_s, a push to `target` (task_to): their rollout is the
+        reference. Its gains on the
         cube's state are the backward pass's (given, or from a backward pass at the torques) times
         executor.object_gain_scale; on the arm's joints, the executor's servo PD (servo_gains): the backward
         pass's own arm gains are soft where the cost does not care where the arm is, and a heavier or grippier
         cube than the model's then pushes the arm off its path. Its worst_world is given, or computed here (with
         executor.replan)."""
-        problem = self.problem(state, len(torques), torques) if problem is None else problem
+        task = self.task_to(target)
+        problem = self.problem(state, len(torques), torques, task) if problem is None else problem
         z = problem.with_torques(torques)
         evaluation = problem.evaluate(z)
         scale, nx = self.settings.executor.object_gain_scale, 2 * self.scene.model.nv
@@ -140,11 +156,11 @@ class PushModel:
         gains[:, np.arange(7), arm] = -self.servo_gains[0]
         gains[:, np.arange(7), nv + arm] = -self.servo_gains[1]
         if worst_world is None:  # what the replans are held to; without them, not computed
-            worst_world = self.worst_world(problem.simulator, state, problem.trajectory(z)) \
+            worst_world = self.worst_world(problem.simulator, state, problem.trajectory(z), task) \
                 if self.settings.executor.replan else math.inf
         return Policy(start_s, self.control_period_s, problem.simulator.timestep_s, np.array(torques, dtype=float),
                       gains, np.vstack([state[None], evaluation.states]), worst_world=worst_world,
-                      object_scales=self.object_scales)
+                      object_scales=self.object_scales, target=target)
 
     def predict(self, state: np.ndarray, running: Policy, from_s: float, steps: int) -> np.ndarray:
         """The model's state `steps` simulation steps after `state` (at from_s) under the running policy's
@@ -177,7 +193,8 @@ class PushModel:
         start_s = running.start_s + knot * tc
         state = self.predict(state, running, measured_s, max(int(round((start_s - measured_s) / dt)), 0))
         guess = running.torques_Nm[knot:]
-        problem = self.problem(state, knots, guess)
+        task = self.task_to(running.target)  # a push to a waypoint is replanned to it, not on to the goal
+        problem = self.problem(state, knots, guess, task)
         executor = self.settings.executor
         # from executor.replan_mu, raised at most executor.replan_regularizations times: past them the step is
         # rejected and the running plan goes on (each raise is a forward pass, and a replan late by ten of them
@@ -196,11 +213,12 @@ class PushModel:
         if solver.gains is None or not (fresh.cost < start.cost and fresh.position_error_m <= start.position_error_m
                                         and speed <= 1.0):
             return None
-        worst_world = self.worst_world(problem.simulator, state, problem.trajectory(outcome.z))
+        worst_world = self.worst_world(problem.simulator, state, problem.trajectory(outcome.z), task)
         if worst_world > running.worst_world:
             return None
         # iLQR's cost only falls, so its outcome is the last kept step's, whose backward pass gave solver.gains
-        return self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem, worst_world)
+        return self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem, worst_world,
+                           running.target)
 
 
 # per process: the models of the goal that runs, built once (its scene's cube and the last identified one)

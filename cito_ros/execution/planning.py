@@ -83,8 +83,9 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
-    return dataclasses.replace(push_model(settings, goal, scales).policy(job.now_s, start, result.knot_torques_Nm),
-                               sturdy=result.sturdy)
+    target = ((float(request.target_position_m[0]), float(request.target_position_m[1])), request.target_yaw_rad)
+    return dataclasses.replace(push_model(settings, goal, scales).policy(job.now_s, start, result.knot_torques_Nm,
+                                                                         target=target), sturdy=result.sturdy)
 
 
 def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, iterations: int,

@@ -37,6 +37,8 @@ class Policy:
     worst_world: float = math.inf  # the largest tolerance ratio at rest in the executor's worlds, the reference
                                  # tracked by its servo from its start (PushModel.worst_world)
     object_scales: tuple[float, float] = (1.0, 1.0)  # the cube's friction and mass in the model it was planned in
+    target: tuple[tuple[float, float], float] | None = None  # ((x, y), yaw) it was planned to: a waypoint, or None
+                                 # for the goal; its replans are held to the same
 
     @property
     def end_s(self) -> float:
