@@ -74,12 +74,6 @@ class ExecuteGoal:
         return pose_errors(position_m, yaw_rad, self.target_position_m, self.target_yaw_rad)
 
 
-def predicted_move(scene, policy: Policy) -> tuple[float, float]:
-    """How far (m, and rad of yaw) the policy's reference moves the cube from its start to its end."""
-    start, end = (scene.object_qpos(state) for state in (policy.reference[0], policy.final_state))
-    return pose_errors(start[:2], yaw_of(start[3:7]), end[:2], yaw_of(end[3:7]))
-
-
 def pose_errors(position_m, yaw_rad: float, other_position_m, other_yaw_rad: float) -> tuple[float, float]:
     """How far apart two planar poses are: in position (m, x and y) and in yaw (rad, the shorter way round)."""
     return float(math.hypot(position_m[0] - other_position_m[0], position_m[1] - other_position_m[1])), \
@@ -339,9 +333,9 @@ class Executor:
                 # (a plan that never touches a cube already within its waypoint's tolerances is "sturdy" there:
                 # five such pushes ran out the time), is not made, nor left to run out the time
                 position, orientation = self.goal.errors(*job.object_pose)
-                cube = self.model.scene.object_qpos(outcome.final_state)
+                start, cube = (self.model.scene.object_qpos(s) for s in (outcome.reference[0], outcome.final_state))
                 predicted = self.goal.errors(cube[:2], yaw_of(cube[3:7]))
-                moved = predicted_move(self.model.scene, outcome)
+                moved = pose_errors(start[:2], yaw_of(start[3:7]), cube[:2], yaw_of(cube[3:7]))
                 task = self.settings.task
                 if tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task) or \
                         tolerance_ratio(*moved, task) <= self.settings.executor.moved_fraction:

@@ -139,7 +139,8 @@ class PushModel:
         cube's state are the backward pass's (given, or from a backward pass at the torques) times
         executor.object_gain_scale; on the arm's joints, the executor's servo PD (servo_gains): the backward
         pass's own arm gains are soft where the cost does not care where the arm is, and a heavier or grippier
-        cube than the model's then pushes the arm off its path. Its worst_world is given, or computed here."""
+        cube than the model's then pushes the arm off its path. Its worst_world is given, or computed here (with
+        executor.replan)."""
         task = self.task_to(target)
         problem = self.problem(state, len(torques), torques, task) if problem is None else problem
         z = problem.with_torques(torques)
@@ -154,8 +155,9 @@ class PushModel:
         gains[:, :, nv + arm] = 0.0
         gains[:, np.arange(7), arm] = -self.servo_gains[0]
         gains[:, np.arange(7), nv + arm] = -self.servo_gains[1]
-        if worst_world is None:  # what the replans are held to, and a push to the goal in place of a waypoint
-            worst_world = self.worst_world(problem.simulator, state, problem.trajectory(z), task)
+        if worst_world is None:  # what the replans are held to; without them, not computed
+            worst_world = self.worst_world(problem.simulator, state, problem.trajectory(z), task) \
+                if self.settings.executor.replan else math.inf
         return Policy(start_s, self.control_period_s, problem.simulator.timestep_s, np.array(torques, dtype=float),
                       gains, np.vstack([state[None], evaluation.states]), worst_world=worst_world,
                       object_scales=self.object_scales, target=target)

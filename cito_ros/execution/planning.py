@@ -10,14 +10,14 @@ import time
 
 import numpy as np
 
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, predicted_move
+from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import push_model, servo_tracking
 from cito_ros.execution.policy import Policy
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import PlanResult, Status, tolerance_ratio
+from cito_ros.planner.results import PlanResult, Status
 from cito_ros.settings import Settings
 
 
@@ -54,9 +54,7 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there.
     A push with pushes left after it is planned to the goal within executor.direct_iterations (a sturdy plan there
     takes 3-19), and where that plan is not sturdy, again to executor.waypoint_fraction of the way, made if sturdy:
-    a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended; but where
-    the cube already rests within the waypoint's tolerances (a plan that never touches it is sturdy there), the push
-    to the goal is made if in every one of executor.world_*_scales it leaves the cube nearer the goal. After a
+    a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended. After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it."""
     if job.kind == "replan":  # in the model the running push was planned in
@@ -72,37 +70,22 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
                                                       executor.world_mass_scales]
     try:
         sequence = job.pushes_left > 0 and executor.waypoint_fraction > 0
-        direct = _plan_to(settings, goal, job, 1.0, executor.direct_iterations if sequence else executor.plan_iterations,
-                          scales, worlds)
-        chosen = direct
-        if sequence and not direct[1].sturdy:
+        request, result = _plan_to(settings, goal, job, 1.0,
+                                   executor.direct_iterations if sequence else executor.plan_iterations, scales, worlds)
+        if sequence and not result.sturdy:
             shorter = _plan_to(settings, goal, job, executor.waypoint_fraction, executor.plan_iterations, scales,
                                worlds)
             if shorter[1].sturdy:
-                chosen = shorter
-        policy = _policy(settings, goal, job, scales, *chosen)
-        if chosen is not direct and isinstance(policy, Policy) and tolerance_ratio(
-                *predicted_move(model.scene, policy), settings.task) <= executor.moved_fraction:
-            # the cube already rests within its waypoint's tolerances, where a plan that never touches it is
-            # sturdy: the push to the goal instead, if in every world it leaves the cube nearer the goal than it is
-            alternative = _policy(settings, goal, job, scales, *direct)
-            if isinstance(alternative, Policy) and alternative.worst_world < tolerance_ratio(
-                    *goal.errors(*job.object_pose), settings.task):
-                policy = alternative
+                request, result = shorter
+        start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
+                              request).initial_state
     except ValueError as error:
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
-    return policy
-
-
-def _policy(settings: Settings, goal: ExecuteGoal, job: Job, object_scales: tuple[float, float],
-            request: PushRequest, result: PlanResult) -> Policy | Failure:
-    """The policy of a push planned for `request` (its target kept: a waypoint's replans are made for it)."""
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
-    start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}), request).initial_state
     target = ((float(request.target_position_m[0]), float(request.target_position_m[1])), request.target_yaw_rad)
-    return dataclasses.replace(push_model(settings, goal, object_scales).policy(
-        job.now_s, start, result.knot_torques_Nm, target=target), sturdy=result.sturdy)
+    return dataclasses.replace(push_model(settings, goal, scales).policy(job.now_s, start, result.knot_torques_Nm,
+                                                                         target=target), sturdy=result.sturdy)
 
 
 def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, iterations: int,
