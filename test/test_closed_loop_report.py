@@ -1,6 +1,8 @@
 """The closed-loop benchmark's report (cito_ros.studies.closed_loop): what it counts and how it says it."""
 import math
 
+import pytest
+
 from cito_ros.studies import closed_loop
 
 
@@ -39,10 +41,10 @@ def test_the_closed_loop_report_splits_the_successes_by_the_first_push_s_sturdin
         "pushes spent 1, invalid request 1." in closed_loop.markdown(summary)
 
 
-def test_a_missed_cube_is_placed_short_of_past_beside_or_turned_at_its_goal_along_the_push(settings):
+def test_a_missed_cube_is_placed_short_of_past_beside_or_turned_at_its_goal_along_the_push(settings, tmp_path):
     """The push runs from (1.0, 0.0) towards (1.1, 0.1): a cube resting 3 cm before the goal along it is short, 3 cm
     beyond it past, 3 cm across it beside, 1 cm off (within the 2 cm tolerance) turned; the report counts the misses'
-    places and says them."""
+    places and says them, and draws them (a record without the poses left out)."""
     along, across = (0.5 ** 0.5, 0.5 ** 0.5), (-(0.5 ** 0.5), 0.5 ** 0.5)
 
     def record(offset, sign: float, error_m: float, success: bool = False, tipped: bool = False) -> dict:
@@ -55,6 +57,8 @@ def test_a_missed_cube_is_placed_short_of_past_beside_or_turned_at_its_goal_alon
 
     records = [record(along, -1, 0.03), record(along, 1, 0.03), record(across, 1, 0.03), record(across, -1, 0.03),
                record(along, 1, 0.01), record(along, 1, 0.005, success=True), record(along, 1, 0.2, tipped=True)]
+    assert closed_loop.push_frame_offset_cm(records[0]) == pytest.approx((-3.0, 0.0))  # short, on the line
+    assert closed_loop.push_frame_offset_cm(records[2]) == pytest.approx((0.0, 3.0))  # to the push's left
     places = [closed_loop.place(r, settings.task) for r in records]
     assert places == ["short", "past", "beside", "beside", "turned", "goal", "tipped"]
     summary = closed_loop.report([{**r, "place": p} for r, p in zip(records, places, strict=True)])
@@ -63,3 +67,7 @@ def test_a_missed_cube_is_placed_short_of_past_beside_or_turned_at_its_goal_alon
     assert "Where their cubes came to rest against the goal, along the push from where the cube started: beside it " \
         "2, short of it 1, past it (a pull back needed) 1, at the place but turned 1, tipped over 1." in \
         closed_loop.markdown(summary)
+    path = closed_loop.plot([{**r, "place": p} for r, p in zip(records, places, strict=True)] +
+                            [{**records[0], "final_pose": []}], tmp_path / "closed_loop.png",
+                            settings.task.success_position_error_m)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -336,6 +336,7 @@ def main(argv: list[str] | None = None) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "closed_loop.md").write_text(closed_loop.markdown(summary))
         (args.out / "closed_loop.json").write_text(json.dumps({"summary": summary, "episodes": records}, indent=1))
+        closed_loop.plot(records, args.out / "closed_loop.png", settings.task.success_position_error_m)
         print(json.dumps({"summary": summary, "episodes": records}) if args.json else closed_loop.markdown(summary))
     elif args.command == "plan-hashes":
         hashes = paper.plan_hashes(args.goals, workers=args.workers, address=args.address)

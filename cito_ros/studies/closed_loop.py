@@ -22,6 +22,7 @@ import math
 import statistics
 from collections import Counter
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -104,10 +105,7 @@ def place(record: dict[str, Any], task) -> str:
         return "goal" if record["success"] else "tipped"
     if record["position_error_m"] < task.success_position_error_m:
         return "turned"
-    start, target, final = (np.asarray(record[key][:2]) for key in ("start_pose", "target_pose", "final_pose"))
-    along = (target - start) / max(float(np.linalg.norm(target - start)), 1e-9)
-    off = final - target
-    ahead, across = float(off @ along), float(along[0] * off[1] - along[1] * off[0])
+    ahead, across = push_frame_offset_cm(record)
     return "beside" if abs(across) > abs(ahead) else "past" if ahead > 0 else "short"
 
 
@@ -149,6 +147,61 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
             "replan_compute_s": _stats([r["replan_compute_s"] for r in closed]),
             "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None,
             "explained": explained}
+
+
+def push_frame_offset_cm(record: dict[str, Any]) -> tuple[float, float] | None:
+    """Where the episode's cube came to rest from its goal, in cm along the push from where it truly started and
+    across it (to the push's left); None for a record without the poses."""
+    if not record.get("final_pose") or not record.get("start_pose"):
+        return None
+    start, target, final = (np.asarray(record[key][:2]) for key in ("start_pose", "target_pose", "final_pose"))
+    along = (target - start) / max(float(np.linalg.norm(target - start)), 1e-9)
+    off = final - target
+    return 100 * float(off @ along), 100 * float(along[0] * off[1] - along[1] * off[0])
+
+
+def plot(records: list[dict[str, Any]], path: Path, tolerance_m: float) -> Path:
+    """One panel per world, the goals inside the steady reach: where each cube came to rest from its goal along and
+    across its push, closed loop filled (a success green, a miss red), open loop hollow gray; the position
+    tolerance drawn as a circle. A miss past the goal lies right of it, one beside it above or below."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in records if not r.get("failed") and zone(r["steady_reach_margin_m"]) == "steady"
+            and push_frame_offset_cm(r) is not None]
+    worlds = list(dict.fromkeys(r["world"] for r in rows))
+    figure, axes = plt.subplots(1, max(len(worlds), 1), figsize=(4.2 * max(len(worlds), 1), 4.8), squeeze=False)
+    limit_cm = 6.0
+    for axis, world in zip(axes[0], worlds, strict=False):
+        for mode in MODES:
+            chosen = [r for r in rows if r["world"] == world and r["mode"] == mode]
+            for success in (True, False):
+                points = np.array([push_frame_offset_cm(r) for r in chosen if r["success"] == success]).reshape(-1, 2)
+                clipped = np.clip(points, -limit_cm, limit_cm)
+                if mode == "closed_loop":
+                    axis.scatter(clipped[:, 0], clipped[:, 1], s=22, color="tab:green" if success else "tab:red",
+                                 label=f"closed loop, {'success' if success else 'miss'} ({len(points)})")
+                else:
+                    axis.scatter(clipped[:, 0], clipped[:, 1], s=18, facecolors="none", edgecolors="gray",
+                                 linewidths=0.8, label=f"open loop, {'success' if success else 'miss'} ({len(points)})")
+        axis.add_patch(plt.Circle((0.0, 0.0), 100 * tolerance_m, fill=False, linestyle="--", color="black"))
+        axis.axhline(0.0, color="gray", linewidth=0.5)
+        axis.axvline(0.0, color="gray", linewidth=0.5)
+        axis.set_xlim(-limit_cm, limit_cm)
+        axis.set_ylim(-limit_cm, limit_cm)
+        axis.set_aspect("equal")
+        axis.set_title(world, fontsize=9)
+        axis.set_xlabel("past the goal along the push (cm)")
+        axis.legend(fontsize=6, loc="lower left")
+    axes[0][0].set_ylabel("beside it, to the push's left (cm)")
+    figure.suptitle("where the cubes came to rest from their goals, inside the steady reach (dashed: the position "
+                    "tolerance, a miss inside it is off in yaw; beyond 6 cm drawn at the edge)", fontsize=9)
+    figure.tight_layout(rect=(0.0, 0.0, 1.0, 0.95))
+    figure.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return path
 
 
 def markdown(summary: dict[str, Any]) -> str:
