@@ -71,3 +71,17 @@ def test_a_missed_cube_is_placed_short_of_past_beside_or_turned_at_its_goal_alon
                             [{**records[0], "final_pose": []}], tmp_path / "closed_loop.png",
                             settings.task.success_position_error_m)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_closed_loop_report_says_how_many_replans_took_the_running_plans_place():
+    def record(replans: int, taken: int | None) -> dict:
+        return {"world": "w", "mode": "closed_loop", "steady_reach_margin_m": 0.05, "success": True,
+                "success_tight": True, "position_error_m": 0.01, "max_joint_speed_ratio": 0.9, "pushes": 1,
+                "replans": replans, "replan_rate_hz": 12.0, "replan_compute_s": 0.08, "tipped": False,
+                **({} if taken is None else {"replans_taken": taken})}
+
+    summary = closed_loop.report([record(10, 4), record(6, 1)])
+    assert summary["replans_taken"] == {"taken": 5, "replans": 16}
+    assert "Taken: 5 of 16 replans (the others left the running plan in place)." in closed_loop.markdown(summary)
+    through_the_nodes = closed_loop.report([record(10, None)])  # the action's result does not count them
+    assert through_the_nodes["replans_taken"] is None and "Taken:" not in closed_loop.markdown(through_the_nodes)

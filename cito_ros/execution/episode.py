@@ -56,6 +56,7 @@ class Episode:
     first_push_sturdy: bool | None = None  # its plan reached the goal in the executor's worlds (None: no push)
     cause: str = ""                  # closed loop: why the executor ended (Executor.cause)
     final_pose: tuple[float, ...] = ()  # the world's cube at rest: x, y (m) and yaw (rad)
+    replans_taken: int = 0           # closed loop: the replans that took the running plan's place
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -91,7 +92,7 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
     return _episode("closed_loop", settings, position, orientation, at_rest, watch, duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
                     float(np.median(seconds)) if seconds else math.nan, plan_compute_s, executor.pushes_cut,
-                    executor.first_push_sturdy, executor.cause, pose)
+                    executor.first_push_sturdy, executor.cause, pose, executor.replans_taken)
 
 
 def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,

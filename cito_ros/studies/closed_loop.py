@@ -143,7 +143,10 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                 "miss_causes": dict(Counter(r["cause"] for r in rows if not r["success"]).most_common()),
                 "miss_places": dict(Counter(r["place"] for r in rows if not r["success"] and "place" in r)
                                     .most_common())}
-    return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]),
+    counted = [r for r in closed if "replans_taken" in r]  # not counted through the nodes
+    taken = {"taken": sum(r["replans_taken"] for r in counted), "replans": sum(r["replans"] for r in counted)} \
+        if counted else None
+    return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]), "replans_taken": taken,
             "replan_compute_s": _stats([r["replan_compute_s"] for r in closed]),
             "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None,
             "explained": explained}
@@ -253,5 +256,6 @@ def markdown(summary: dict[str, Any]) -> str:
     if rate["median"] is not None:
         lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "
                      f"episodes' medians {rate['p90']:.1f} Hz), median compute per replan {1e3 * compute['median']:.0f} "
-                     f"ms.")
+                     f"ms." + (f" Taken: {taken['taken']} of {taken['replans']} replans (the others left the running "
+                               f"plan in place)." if (taken := summary.get("replans_taken")) else ""))
     return "\n".join(lines) + "\n"
