@@ -92,7 +92,8 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
     return _episode("closed_loop", settings, position, orientation, at_rest, watch, duration_s,
                     executor.ending.value, executor.message, executor.pushes, len(seconds), executor.replan_rate_hz,
                     float(np.median(seconds)) if seconds else math.nan, plan_compute_s, executor.pushes_cut,
-                    executor.first_push_sturdy, executor.cause, pose, executor.replans_taken)
+                    executor.first_push_sturdy, executor.cause, final_pose=pose,
+                    replans_taken=executor.replans_taken)
 
 
 def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
@@ -125,7 +126,7 @@ def run_open_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
 
     position, orientation, at_rest, pose = _settle(world, hold, goal, settings.task.rest_speed_m_s)
     return _episode("open_loop", settings, position, orientation, at_rest, watch, duration_s, "executed",
-                    result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s, 0, None, "", pose)
+                    result.metrics.status.value, 1, 0, math.nan, math.nan, plan_compute_s, final_pose=pose)
 
 
 class Watch:
@@ -155,11 +156,11 @@ def at_goal(task, at_rest: bool, position_m: float, orientation_rad: float, yaw_
 
 
 def _episode(mode: str, settings: Settings, position: float, orientation: float, at_rest: bool, watch: Watch,
-             *rest) -> Episode:
+             *rest, **named) -> Episode:
     task, upright = settings.task, watch.upright
     return Episode(mode, at_goal(task, at_rest, position, orientation, upright=upright),
                    at_goal(task, at_rest, position, orientation, TIGHT_YAW_RAD, upright), position, orientation,
-                   at_rest, watch.max_joint_speed_ratio, watch.max_tilt_rad, not upright, *rest)
+                   at_rest, watch.max_joint_speed_ratio, watch.max_tilt_rad, not upright, *rest, **named)
 
 
 def _settle(world: SimulatedWorld, hold, goal: ExecuteGoal, rest_speed_m_s: float

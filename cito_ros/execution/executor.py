@@ -228,9 +228,13 @@ class Executor:
     def _moved_since(self, policy: Policy, now_s: float) -> bool:
         """Whether the cube has left where a push was planned for it: moved since by more than
         executor.moved_fraction of the task's tolerances (the larger of position and yaw)."""
-        planned = self.model.scene.object_qpos(policy.reference[0])
-        moved = pose_errors(*self.object_pose(now_s), planned[:2], yaw_of(planned[3:7]))
+        moved = pose_errors(*self.object_pose(now_s), *self._cube_in(policy.reference[0]))
         return tolerance_ratio(*moved, self.settings.task) > self.settings.executor.moved_fraction
+
+    def _cube_in(self, state: np.ndarray) -> tuple[np.ndarray, float]:
+        """The cube's (x, y) and yaw in a state of the model."""
+        qpos = self.model.scene.object_qpos(state)
+        return qpos[:2], yaw_of(qpos[3:7])
 
     def _off_path_m(self) -> float:
         """How far the cube's last measured position is from where the running push's reference has it at that
@@ -333,9 +337,9 @@ class Executor:
                 # (a plan that never touches a cube already within its waypoint's tolerances is "sturdy" there:
                 # five such pushes ran out the time), is not made, nor left to run out the time
                 position, orientation = self.goal.errors(*job.object_pose)
-                start, cube = (self.model.scene.object_qpos(s) for s in (outcome.reference[0], outcome.final_state))
-                predicted = self.goal.errors(cube[:2], yaw_of(cube[3:7]))
-                moved = pose_errors(start[:2], yaw_of(start[3:7]), cube[:2], yaw_of(cube[3:7]))
+                cube = self._cube_in(outcome.final_state)
+                predicted = self.goal.errors(*cube)
+                moved = pose_errors(*self._cube_in(outcome.reference[0]), *cube)
                 task = self.settings.task
                 if tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task) or \
                         tolerance_ratio(*moved, task) <= self.settings.executor.moved_fraction:

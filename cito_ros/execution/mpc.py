@@ -135,12 +135,11 @@ class PushModel:
                problem: PushProblem | None = None, worst_world: float | None = None,
                target: tuple[tuple[float, float], float] | None = None) -> Policy:
         """The policy of knot torques from `state` at start_s, a push to `target` (task_to): their rollout is the
-        reference. Its gains on the
-        cube's state are the backward pass's (given, or from a backward pass at the torques) times
-        executor.object_gain_scale; on the arm's joints, the executor's servo PD (servo_gains): the backward
-        pass's own arm gains are soft where the cost does not care where the arm is, and a heavier or grippier
-        cube than the model's then pushes the arm off its path. Its worst_world is given, or computed here (with
-        executor.replan)."""
+        reference. Its gains on the cube's state are the backward pass's (given, or from a backward pass at the
+        torques) times executor.object_gain_scale; on the arm's joints, the executor's servo PD (servo_gains): the
+        backward pass's own arm gains are soft where the cost does not care where the arm is, and a heavier or
+        grippier cube than the model's then pushes the arm off its path. Its worst_world is given, or computed here
+        (with executor.replan)."""
         task = self.task_to(target)
         problem = self.problem(state, len(torques), torques, task) if problem is None else problem
         z = problem.with_torques(torques)
