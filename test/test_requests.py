@@ -73,6 +73,25 @@ class TestReach:
         with pytest.raises(ValueError, match=r"target is 10.0 cm behind the object's pushed face"):
             plan_push("vscm", 7, settings=settings, target_position_m=[0.89, 0.0])
 
+    def test_a_turn_one_push_cannot_make_is_refused_with_how_much(self, settings):
+        """A push turns the cube as it moves it, by at most the orientation tolerance plus
+        task.turn_per_push_rad_per_m per metre and at most task.max_push_turn_rad: a turn in place, or 1.2 rad
+        over 8 cm, is refused before anything is solved (each ran to the time limit and missed); 0.6 rad over 8 cm
+        and a turn within the tolerance in place are posed; the same turns the other way round or a whole turn
+        apart alike. A long push is refused a turn beyond the cap."""
+        k, most = settings.task.turn_per_push_rad_per_m, settings.task.max_push_turn_rad
+        refused = (([0.99, 0.0], 0.6), ([0.99, 0.0], -0.6), ([1.07, 0.0], 1.2), ([1.07, 0.0], -1.2 + 2 * math.pi),
+                   ([1.24, 0.0], 0.2 + most))
+        for target, yaw in refused:
+            turn = abs(math.remainder(yaw, 2 * math.pi))
+            with pytest.raises(ValueError, match=rf"target turns the object by {turn:.2f} rad over a "
+                                                 rf"{100 * (target[0] - 0.99):.1f} cm push: .* at most "
+                                                 rf"{0.15 + min(k * (target[0] - 0.99), most):.2f} rad"):
+                build_problem(settings, PushRequest("vscm", 7, None, target, yaw))
+        posed = (([0.99, 0.0], 0.1), ([1.07, 0.0], 0.6), ([1.07, 0.0], -0.6), ([1.07, 0.0], 2 * math.pi + 0.6))
+        for target, yaw in posed:
+            assert build_problem(settings, PushRequest("vscm", 7, None, target, yaw)).task is not None
+
     def test_the_pushed_face_is_the_face_towards_the_arm_wherever_the_cube_is_turned(self, settings):
         """A goal straight beside the cube is a side push for a cube square to the arm, and a goal 5.6 cm behind
         the pushed face of one turned by 0.6 rad; a goal within the position tolerance behind it (a turn in
@@ -82,7 +101,7 @@ class TestReach:
         turned = PushRequest("vscm", 7, None, [0.99, -0.10], 0.0, None, ((0.99, 0.0), 0.6))
         with pytest.raises(ValueError, match=r"target is 5.6 cm behind the object's pushed face"):
             build_problem(settings, turned)
-        in_place = PushRequest("vscm", 7, None, [0.975, 0.0], 0.5, None, ((0.99, 0.0), 0.0))
+        in_place = PushRequest("vscm", 7, None, [0.975, 0.0], 0.25, None, ((0.99, 0.0), 0.0))
         assert build_problem(settings, in_place).task is not None
         for target, refused in (([1.09, 0.0], False), ([0.89, 0.0], True)):
             half_turned = PushRequest("vscm", 7, None, target, math.pi, None, ((0.99, 0.0), math.pi))

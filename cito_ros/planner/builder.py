@@ -16,7 +16,7 @@ from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import TABLE_TOP_Z_M, Scene, start_configuration
 from cito_ros.model.simulator import Simulator
 from cito_ros.planner.problem import PushProblem, StageCost
-from cito_ros.planner.task import PushTask
+from cito_ros.planner.task import PushTask, yaw_of
 from cito_ros.settings import SceneConfig, Settings
 
 
@@ -103,15 +103,32 @@ def scene_config(settings: Settings, request: PushRequest) -> SceneConfig:
 
 
 def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, settings: Settings) -> None:
-    """A goal behind the face the plate pushes on (the object candidate's), by more than the success tolerance, is
-    refused at once rather than searched for to the time limit: the plate's force on that face points into the
-    object within the friction cone, so pushing moves the object away from the face's plane, never back."""
+    """A goal one push on the face the plate pushes on (the object candidate's) cannot reach is refused at once
+    rather than searched for to the time limit:
+    - one behind that face by more than the success tolerance: the plate's force on the face points into the
+      object within the friction cone, so pushing moves the object away from the face's plane, never back;
+    - one whose turn is more than the orientation tolerance plus task.turn_per_push_rad_per_m times the distance
+      the object's centre moves, or plus task.max_push_turn_rad: an off-centre push turns the object as it moves
+      it, no push turns it in place, and in a sweep of single pushes none turned it further (docs/results.md: A turn
+      one push cannot make is refused at once)."""
     qpos = scene.object_qpos(initial_state)
     normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
-    behind_m = -float(np.dot(task.target_position_m[:2] - qpos[:2], normal / np.linalg.norm(normal)))
+    push_m = task.target_position_m[:2] - qpos[:2]
+    behind_m = -float(np.dot(push_m, normal / np.linalg.norm(normal)))
     if behind_m > settings.task.success_position_error_m:
         raise ValueError(f"target is {100 * behind_m:.1f} cm behind the object's pushed face (back towards the arm): "
                          f"a push on that face, the only one this planner pushes on, moves the object away from it")
+    turn_rad = abs(math.remainder(task.target_yaw_rad - yaw_of(qpos[3:7]), 2 * math.pi))
+    distance_m = float(np.linalg.norm(push_m))
+    limits = settings.task
+    most_rad = limits.success_orientation_error_rad + min(limits.turn_per_push_rad_per_m * distance_m,
+                                                          limits.max_push_turn_rad)
+    if turn_rad > most_rad:
+        raise ValueError(f"target turns the object by {turn_rad:.2f} rad over a {100 * distance_m:.1f} cm push: one "
+                         f"push on the object's pushed face, the only one this planner pushes on, turns it by at most "
+                         f"{most_rad:.2f} rad there ({limits.success_orientation_error_rad:g} rad plus "
+                         f"{limits.turn_per_push_rad_per_m:g} rad per metre pushed, at most "
+                         f"{limits.max_push_turn_rad:g}); a turn in place or a larger one needs pushes on other faces")
 
 
 def check_object_start(scene: Scene, start_q: np.ndarray) -> None:
