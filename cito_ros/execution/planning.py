@@ -41,7 +41,6 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
     return dataclasses.replace(settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": iterations,
-        "task.success_orientation_error_rad": 0.1,
         "stages.scripted.follow_face": True,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
