@@ -189,9 +189,10 @@ def test_bench_collisions(tmp_path):
 
 
 def test_the_main_job_cancelled_returns_the_best_plan_so_far(tmp_path):
-    # a turn in place that no push achieves: the search runs every start, for tens of seconds
-    result = run("cito-demo", "--target", "0.99", "0", "1.2", "--cancel-after", "3", "--bag-directory", str(tmp_path),
-                 timeout=300)
+    # a push 62 degrees off the cube's pushed face, 24 cm away, that no push on that face reaches: the search runs
+    # every start, for tens of seconds
+    result = run("cito-demo", "--target", "1.10", "-0.21", "-0.49", "--cancel-after", "3", "--bag-directory",
+                 str(tmp_path), timeout=300)
     assert result.returncode == 0, result.stderr
     assert "cancelling the goal after 3 s" in result.stderr
     assert "status 5 (no success) the solve was cancelled" in result.stdout

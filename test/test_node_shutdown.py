@@ -10,8 +10,9 @@ from cito_msgs.srv import PlanPush
 
 from node_harness import node_process, read_with_mcap, read_with_rosbags, recorded_counts, request
 
-# a turn in place that no push achieves: the search runs every start, for tens of seconds
-LONG = request("vscm", start=None, x=0.99, q=(0.0, 0.0, math.sin(0.6), math.cos(0.6)))
+# a push 62 degrees off the cube's pushed face, 24 cm away, that no push on that face reaches (it ran to the time
+# limit 11 and 24 cm off): every start runs, for tens of seconds
+LONG = request("vscm", start=None, x=1.10, y=-0.21, q=(0.0, 0.0, math.sin(-0.245), math.cos(-0.245)))
 
 
 def test_sigterm_during_a_solve(tmp_path):

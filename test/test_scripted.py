@@ -88,7 +88,7 @@ def test_the_joint_path_keeps_within_the_speed_fraction_and_inside_the_ranges(se
 
 
 def test_a_target_on_the_objects_start_is_scripted_as_a_touch(settings):
-    problem = executor(settings, 6, [0.99, 0.0], 0.4)  # a turn in place
+    problem = executor(settings, 6, [0.99, 0.0], 0.1)  # a turn in place (within the tolerance: posed)
     evaluation = problem.evaluate(problem.with_torques(scripted_torques(problem, settings.stages.scripted,
                                                                         settings.tracking)))
     scene = problem.scene
@@ -102,9 +102,10 @@ def start_of(stage) -> str:
 
 
 def test_where_the_first_script_misses_its_variants_run_in_order_before_any_discovery(settings):
-    # a turn in place that no push achieves, each stage capped at a few iterations: every start runs, in order
+    # a push 62 degrees off the pushed face that no push achieves, each stage capped at a few iterations: every
+    # start runs, in order
     capped = settings.with_overrides({"solver.max_iter": 3, "stages.starts": [0.5], "stages.horizon_scales": [1.0]})
-    result = plan_push("scm", 6, target_position_m=[0.99, 0.0], target_yaw_rad=1.2, settings=capped)
+    result = plan_push("scm", 6, target_position_m=[1.10, -0.21], target_yaw_rad=-0.49, settings=capped)
     starts = list(dict.fromkeys(start_of(stage) for stage in result.stages))
     assert not result.metrics.success
     assert starts[:4] == ["scripted", "scripted 2", "scripted 3", "discovery"]
