@@ -18,12 +18,9 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
 
-from node_harness import Client, read_with_mcap, read_with_rosbags, request, start_node, wait_for_bag
+from node_harness import LONG_GOAL, Client, read_with_mcap, read_with_rosbags, request, start_node, wait_for_bag
 
 STEADY_GOAL = dict(start=None, model="vscm", x=1.14)  # the main job's: 15 cm from q0(beta = 5), inside the steady reach
-# a push 62 degrees off the cube's pushed face, 24 cm away, that no push on that face reaches (it ran to the time
-# limit 11 and 24 cm off): every start runs, for tens of seconds
-LONG_GOAL = dict(start=None, model="vscm", x=1.10, y=-0.21, q=(0.0, 0.0, math.sin(-0.245), math.cos(-0.245)))
 
 
 class ActionUser(Client):

@@ -1,6 +1,5 @@
 """The planner node stopped while it works: SIGTERM during a solve cancels it and finishes every bag. The node
 in its own process, a client in this one, over Fast DDS on an isolated domain."""
-import math
 import os
 import signal
 import time
@@ -8,11 +7,9 @@ from pathlib import Path
 
 from cito_msgs.srv import PlanPush
 
-from node_harness import node_process, read_with_mcap, read_with_rosbags, recorded_counts, request
+from node_harness import LONG_GOAL, node_process, read_with_mcap, read_with_rosbags, recorded_counts, request
 
-# a push 62 degrees off the cube's pushed face, 24 cm away, that no push on that face reaches (it ran to the time
-# limit 11 and 24 cm off): every start runs, for tens of seconds
-LONG = request("vscm", start=None, x=1.10, y=-0.21, q=(0.0, 0.0, math.sin(-0.245), math.cos(-0.245)))
+LONG = request(**LONG_GOAL)
 
 
 def test_sigterm_during_a_solve(tmp_path):

@@ -5,7 +5,6 @@ outcome: a push planned from rest with its policy, one MPC replan, or a `Failure
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 
 import numpy as np
@@ -18,6 +17,7 @@ from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status
+from cito_ros.planner.task import turn_rad
 from cito_ros.settings import Settings
 
 
@@ -98,7 +98,7 @@ def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, i
     position, target_yaw = np.array(goal.target_position_m), goal.target_yaw_rad
     if fraction < 1.0:
         position = np.array([x, y]) + fraction * (position - np.array([x, y]))
-        target_yaw = yaw + fraction * math.remainder(target_yaw - yaw, 2 * math.pi)
+        target_yaw = yaw + fraction * turn_rad(yaw, target_yaw)
     request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=position, target_yaw_rad=target_yaw,
                           scene=goal.scene, object_pose=((x, y), yaw), object_scales=object_scales)
     return request, plan_push(request.contact_model, start_q=request.start_q,

@@ -16,7 +16,7 @@ from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import TABLE_TOP_Z_M, Scene, start_configuration
 from cito_ros.model.simulator import Simulator
 from cito_ros.planner.problem import PushProblem, StageCost
-from cito_ros.planner.task import PushTask, yaw_of
+from cito_ros.planner.task import PushTask, turn_rad, yaw_of
 from cito_ros.settings import SceneConfig, Settings
 
 
@@ -118,13 +118,13 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
     if behind_m > settings.task.success_position_error_m:
         raise ValueError(f"target is {100 * behind_m:.1f} cm behind the object's pushed face (back towards the arm): "
                          f"a push on that face, the only one this planner pushes on, moves the object away from it")
-    turn_rad = abs(math.remainder(task.target_yaw_rad - yaw_of(qpos[3:7]), 2 * math.pi))
+    turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
     distance_m = float(np.linalg.norm(push_m))
     limits = settings.task
     most_rad = limits.success_orientation_error_rad + min(limits.turn_per_push_rad_per_m * distance_m,
                                                           limits.max_push_turn_rad)
-    if turn_rad > most_rad:
-        raise ValueError(f"target turns the object by {turn_rad:.2f} rad over a {100 * distance_m:.1f} cm push: one "
+    if turn > most_rad:
+        raise ValueError(f"target turns the object by {turn:.2f} rad over a {100 * distance_m:.1f} cm push: one "
                          f"push on the object's pushed face, the only one this planner pushes on, turns it by at most "
                          f"{most_rad:.2f} rad there ({limits.success_orientation_error_rad:g} rad plus "
                          f"{limits.turn_per_push_rad_per_m:g} rad per metre pushed, at most "

@@ -27,7 +27,7 @@ import numpy as np
 
 from cito_ros.model.simulator import FULL_PHYSICS
 from cito_ros.planner import push_limits, tracking
-from cito_ros.planner.task import yaw_of
+from cito_ros.planner.task import turn_rad, yaw_of
 from cito_ros.planner.tracking import JointPath
 from cito_ros.settings import ScriptedSettings, TrackingSettings
 
@@ -77,9 +77,9 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
         scene, problem.initial_state, problem.task.target_position_m) >= script.follow_face_margin_m
     if follow_face:
         yaw0 = yaw_of(object_qpos[3:7])
-        quarter = round(math.remainder(math.atan2(direction[1], direction[0]) - yaw0, 2 * math.pi) / (math.pi / 2))
+        quarter = round(turn_rad(yaw0, math.atan2(direction[1], direction[0])) / (math.pi / 2))
         face0 = yaw0 + quarter * math.pi / 2  # the pushed face's inward normal
-        turn = math.remainder(problem.task.target_yaw_rad - yaw0, 2 * math.pi)
+        turn = turn_rad(yaw0, problem.task.target_yaw_rad)
         along = _along(face0)
     behind = scene.object_half_size[0] + scene.plate_half_thickness_m
     lift = np.array([0.0, 0.0, script.contact_height_m])

@@ -29,6 +29,11 @@ def yaw_of(quaternion: np.ndarray) -> float | np.ndarray:
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+def turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
+    """The turn (rad) from one yaw to another the shorter way round, in [-pi, pi]: counter-clockwise positive."""
+    return math.remainder(to_yaw_rad - from_yaw_rad, 2 * math.pi)
+
+
 def yaw_rotation(yaw_rad: float) -> np.ndarray:
     """The rotation matrix of a yaw about world z."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
