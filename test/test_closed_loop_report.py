@@ -1,9 +1,12 @@
 """The closed-loop benchmark's report (cito_ros.studies.closed_loop): what it counts and how it says it."""
 import math
 
+import numpy as np
 import pytest
 
+from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.studies import closed_loop
+from cito_ros.studies.targets import Goal
 
 
 def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_and_the_pushes_cut_short():
@@ -85,3 +88,33 @@ def test_the_closed_loop_report_says_how_many_replans_took_the_running_plans_pla
     assert "Taken: 5 of 16 replans (the others left the running plan in place)." in closed_loop.markdown(summary)
     through_the_nodes = closed_loop.report([record(10, None)])  # the action's result does not count them
     assert through_the_nodes["replans_taken"] is None and "Taken:" not in closed_loop.markdown(through_the_nodes)
+
+
+def test_the_closed_loop_report_counts_successes_and_refusals_by_the_face_a_push_towards_the_goal_needs(settings):
+    def record(face: str, success: bool, cause: str, pushes: int) -> dict:
+        return {"world": "w", "mode": "closed_loop", "face": face, "steady_reach_margin_m": 0.05, "success": success,
+                "success_tight": success, "position_error_m": 0.01, "max_joint_speed_ratio": 0.9, "pushes": pushes,
+                "replans": 0, "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": False,
+                "pushes_cut": 0, "first_push_sturdy": pushes > 0 or None, "cause": cause}
+
+    records = [record("near", True, "succeeded", 1), record("near", False, "time_limit", 2),
+               record("side", False, "invalid_request", 0), record("side", False, "no_push_from_here", 1),
+               record("far", False, "invalid_request", 0)]
+    # the refused have no resting pose to place against the push: never pushed, they are counted as refused
+    refused = [{**r, "position_error_m": math.nan} for r in records if r["pushes"] == 0]
+    assert [closed_loop.place(r, settings.task) for r in refused] == ["refused", "refused"]
+    summary = closed_loop.report(records)
+    assert summary["faces"] == {"near": {"episodes": 2, "success": 1, "refused": 0},
+                                "side": {"episodes": 2, "success": 0, "refused": 1},
+                                "far": {"episodes": 1, "success": 0, "refused": 1}}
+    assert "Closed loop by the face a push towards the goal needs (from where the cube starts): near 1 of 2 " \
+        "episodes (0 refused before any push); side 0 of 2 episodes (1 refused before any push); far 0 of 1 " \
+        "episodes (1 refused before any push)." in closed_loop.markdown(summary)
+
+
+def test_a_goal_the_planner_refuses_is_still_placed_in_its_reach_zone(settings):
+    # the any distribution draws goals behind the pushed face: refused by the planner, judged in their zone all the same
+    behind = Goal(0, 5.0, (0.80, 0.0), 0.0, 0.19, math.pi, "far")
+    with pytest.raises(ValueError, match="behind the object's pushed face"):
+        build_problem(settings, PushRequest("vscm", 5.0, target_position_m=np.array(behind.target_position_m)))
+    assert 0.3 < closed_loop.steady_margin_m(behind, settings) < 0.5  # 0.80 m out, the steady reach 1.19 m

@@ -12,7 +12,8 @@
     cito-bench roughness [--scenes S ...] [--plans] [--json]   how far a push's outcome jumps under tiny changes
     cito-bench push-limits [--heights H ...] [--step M] [--json]   where a push that holds its height can leave the cube
     cito-bench round-trip [--n 20] [--seed S] [--json]   the node's answer time beyond the solve, and its bags
-    cito-bench closed-loop [--n 30] [--seed S] [--out DIR]   open and closed loop in mismatched worlds (in process)
+    cito-bench closed-loop [--n 30] [--seed S] [--distribution D] [--ros] [--out DIR]   open and closed loop in
+                                                  mismatched worlds (in process; --ros: through the nodes)
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -179,6 +180,9 @@ def main(argv: list[str] | None = None) -> int:
     closed = commands.add_parser("closed-loop", help="pushes open and closed loop in worlds that are not the model")
     closed.add_argument("--n", type=positive_int, default=30, help="targets goals (each in every world, both ways)")
     closed.add_argument("--seed", type=int, default=0)
+    closed.add_argument("--distribution", choices=DISTRIBUTIONS, default="forward",
+                        help="the targets distribution the goals are drawn from (forward: the default; any: anywhere "
+                             "on the table the arm can push the cube to, any yaw)")
     closed.add_argument("--contact-model", default="vscm", choices=asks.MODELS)
     closed.add_argument("--ros", action="store_true", help="closed loop through cito-executor-node and "
                         "cito-sim-robot over DDS, one episode after another in real time (else: in process, on Ray)")
@@ -320,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         from cito_ros.studies import closed_loop, targets as targets_module
 
         settings = load_settings()
-        goals, _ = targets_module.draw_goals(args.n, args.seed, settings)
+        goals, _ = targets_module.draw_goals(args.n, args.seed, settings, args.distribution)
         if args.ros:
             from cito_ros.cli.closed_loop_ros import ros_records
 
@@ -331,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers))
             records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
-                                      out=args.out / f"seed{args.seed}", label="closed loop")
+                                      out=args.out / f"{args.distribution}-seed{args.seed}", label="closed loop")
         summary = closed_loop.report(records)
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "closed_loop.md").write_text(closed_loop.markdown(summary))

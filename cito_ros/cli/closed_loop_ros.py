@@ -78,6 +78,6 @@ def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, mode
               "first_push_sturdy": bool(result.first_push_sturdy) if result.pushes else None,
               "cause": result.cause, "replans": int(result.replans), "replan_rate_hz": rate,
               "replan_compute_s": 1.0 / rate, "plan_compute_s": math.nan, "phases": list(outcome.phases),
-              "bag_path": result.bag_path, "final_pose": list(outcome.final_pose),
+              "bag_path": result.bag_path, "final_pose": list(outcome.final_pose), "face": goal.face,
               **closed_loop.poses(goal, mismatch, settings)}
     return {**record, "place": closed_loop.place(record, task)}

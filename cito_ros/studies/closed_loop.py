@@ -2,8 +2,9 @@
 the planner's model. ROS-free: the executor's own code in lock step with the world, no DDS (through the nodes,
 `--ros`: cito_ros.cli.closed_loop_ros).
 
-Goals: the `targets` distribution (seeded; cito_ros.studies.targets), judged apart by zone: inside the steady
-push reach, and beyond it (reached only by a strike: the near-reach share, best effort). Worlds (WORLDS): the
+Goals: a `targets` distribution (seeded; cito_ros.studies.targets; forward by default, or any), judged apart by
+zone: inside the steady push reach, and beyond it (reached only by a strike: the near-reach share, best effort);
+the closed loop's also by the face a push towards the goal needs. Worlds (WORLDS): the
 cube's friction x0.5 or x1.5 and its mass x0.5 or x2, each with the cube off by 15 mm along x and along y and
 by 0.1 rad (the signs seeded per goal), a camera with 1 mm and 0.01 rad of noise and 30 ms of latency. Each goal
 in each world is executed twice (cito_ros.execution.episode):
@@ -30,9 +31,9 @@ import numpy as np
 from cito_ros.execution.episode import run_closed_loop, run_open_loop
 from cito_ros.execution.executor import ExecuteGoal
 from cito_ros.execution.world import Mismatch, SimulatedWorld
-from cito_ros.model.scene import start_configuration
+from cito_ros.model.contact_models import contact_model
+from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner import push_limits
-from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.results import ZONES, zone
 from cito_ros.settings import Settings
 from cito_ros.studies.targets import Goal
@@ -42,7 +43,7 @@ SENSING = dict(pose_noise_m=0.001, yaw_noise_rad=0.01, latency_s=0.03)
 WORLDS = tuple(Mismatch(f"friction x{f:g}, mass x{m:g}", f, m, **SENSING) for f in (0.5, 1.5) for m in (0.5, 2.0))
 MODES = ("open_loop", "closed_loop")
 PLACES = {"short": "short of it", "past": "past it (a pull back needed)", "beside": "beside it",
-          "turned": "at the place but turned", "tipped": "tipped over"}
+          "turned": "at the place but turned", "tipped": "tipped over", "refused": "refused, never pushed"}
 
 
 def world_for(mismatch: Mismatch, goal: Goal) -> Mismatch:
@@ -53,10 +54,11 @@ def world_for(mismatch: Mismatch, goal: Goal) -> Mismatch:
 
 
 def steady_margin_m(goal: Goal, settings: Settings) -> float:
-    """The goal's steady_reach_margin_m in the planner's model (the zone it is judged in)."""
-    posed = build_problem(settings, PushRequest("vscm", start_q=start_configuration(goal.beta),
-                                                target_position_m=np.array(goal.target_position_m)))
-    return push_limits.steady_reach_margin_m(posed.scene, posed.initial_state, goal.target_position_m)
+    """The goal's steady_reach_margin_m in the planner's model (the zone it is judged in), whether or not the planner
+    poses a push to it."""
+    scene = Scene(contact_model("vscm", settings.contact_models), settings.scene)
+    return push_limits.steady_reach_margin_m(scene, scene.initial_state(start_configuration(goal.beta)),
+                                             goal.target_position_m)
 
 
 def poses(goal: Goal, world_mismatch: Mismatch, settings: Settings) -> dict[str, list[float]]:
@@ -80,7 +82,8 @@ def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Set
         result = run_closed_loop(settings, target, world)
     record = {"goal": goal.index, "world": mismatch.name, "mode": mode, "contact_model": model,
               "offset_m": list(world_mismatch.offset_m), "offset_yaw_rad": world_mismatch.offset_yaw_rad,
-              "steady_reach_margin_m": steady_margin_m(goal, settings), **poses(goal, world_mismatch, settings),
+              "face": goal.face, "steady_reach_margin_m": steady_margin_m(goal, settings),
+              **poses(goal, world_mismatch, settings),
               **result.as_dict()}
     return {**record, "place": place(record, settings.task)}
 
@@ -100,9 +103,11 @@ def place(record: dict[str, Any], task) -> str:
     """Where an episode's cube came to rest against its goal, in the frame of the push from where it truly started:
     "goal" (a success); "tipped"; "turned" (within the position tolerance, the yaw not); else "beside" (more across
     the push than along it), "past" (beyond the goal: only a pull back, a push on another face, brings it back) or
-    "short"."""
+    "short"; "refused" where no push was planned."""
     if record["success"] or record["tipped"]:
         return "goal" if record["success"] else "tipped"
+    if "invalid_request" in (record.get("ending"), record.get("cause")) and not record["pushes"]:
+        return "refused"
     if record["position_error_m"] < task.success_position_error_m:
         return "turned"
     ahead, across = push_frame_offset_cm(record)
@@ -143,13 +148,18 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                 "miss_causes": dict(Counter(r["cause"] for r in rows if not r["success"]).most_common()),
                 "miss_places": dict(Counter(r["place"] for r in rows if not r["success"] and "place" in r)
                                     .most_common())}
+    faces = {}  # per face a push towards the goal needs (targets.face_needed): the any distribution's
+    for face in dict.fromkeys(r["face"] for r in closed if "face" in r):
+        rows = [r for r in closed if r.get("face") == face]
+        faces[face] = {"episodes": len(rows), "success": sum(r["success"] for r in rows),
+                       "refused": sum(r.get("cause") == "invalid_request" and r["pushes"] == 0 for r in rows)}
     counted = [r for r in closed if "replans_taken" in r]  # not counted through the nodes
     taken = {"taken": sum(r["replans_taken"] for r in counted), "replans": sum(r["replans"] for r in counted)} \
         if counted else None
     return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]), "replans_taken": taken,
             "replan_compute_s": _stats([r["replan_compute_s"] for r in closed]),
             "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None,
-            "explained": explained}
+            "explained": explained, "faces": faces}
 
 
 def push_frame_offset_cm(record: dict[str, Any]) -> tuple[float, float] | None:
@@ -252,6 +262,10 @@ def markdown(summary: dict[str, Any]) -> str:
                      f"{fragile['episodes']}, {fragile['success']} successes. The misses by the executor's cause: "
                      f"{causes or 'none'}." + (f" Where their cubes came to rest against the goal, along the push "
                                               f"from where the cube started: {places}." if places else ""))
+    if faces := summary.get("faces"):
+        lines.append("Closed loop by the face a push towards the goal needs (from where the cube starts): " + "; ".join(
+            f"{face} {e['success']} of {e['episodes']} episodes ({e['refused']} refused before any push)"
+            for face, e in faces.items()) + ".")
     rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
     if rate["median"] is not None:
         lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "
