@@ -65,7 +65,7 @@ def test_the_face_following_script_turns_the_object_to_the_target_yaw_not_to_the
 
 def test_near_the_steady_reach_edge_and_beyond_it_the_plate_stays_along_the_push_even_when_following_faces(settings):
     # a strike throws the cube along the plate's normal, and near the edge a plate turned with the face is hard for
-    # the arm to hold: docs/results.md, "The planner's scripts follow the face"
+    # the arm to hold: docs/results.md, "The scripts follow the face"
     followed = settings.with_overrides({"stages.scripted.follow_face": True})
     within = followed.stages.scripted.follow_face_margin_m
     for target, along_push in (([1.10, 0.05], False), ([1.18, 0.02], True), ([1.21, 0.06], True)):

@@ -62,7 +62,7 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
     yaw from the start's to the target's (a flat plate pressed on a face lines the face up with it: a plate along
     the push turns the cube to the push's direction, whatever the target yaw). Nearer that reach's edge, and beyond
     it, the plate stays along the push: a strike throws the object along the plate's normal, and at the edge the arm
-    holds a turned plate only slowly (docs/results.md: The planner's scripts follow the face)."""
+    holds a turned plate only slowly (docs/results.md: The scripts follow the face)."""
     scene, simulator = problem.simulator.scene, problem.simulator
     data = _at_start(problem)
     plate = data.site_xpos[scene.robot_site_id].copy()
