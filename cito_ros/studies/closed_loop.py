@@ -99,6 +99,12 @@ def _stats(values: list[float]) -> dict[str, float | None]:
             "p90": float(np.percentile(values, 90)) if values else None}
 
 
+def refused(record: dict[str, Any]) -> bool:
+    """Whether the episode ended before any push, its goal refused (in process the ending says so, through the nodes
+    the executor's cause)."""
+    return "invalid_request" in (record.get("ending"), record.get("cause")) and not record["pushes"]
+
+
 def place(record: dict[str, Any], task) -> str:
     """Where an episode's cube came to rest against its goal, in the frame of the push from where it truly started:
     "goal" (a success); "tipped"; "turned" (within the position tolerance, the yaw not); else "beside" (more across
@@ -106,7 +112,7 @@ def place(record: dict[str, Any], task) -> str:
     "short"; "refused" where no push was planned."""
     if record["success"] or record["tipped"]:
         return "goal" if record["success"] else "tipped"
-    if "invalid_request" in (record.get("ending"), record.get("cause")) and not record["pushes"]:
+    if refused(record):
         return "refused"
     if record["position_error_m"] < task.success_position_error_m:
         return "turned"
@@ -152,7 +158,7 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
     for face in dict.fromkeys(r["face"] for r in closed if "face" in r):
         rows = [r for r in closed if r.get("face") == face]
         faces[face] = {"episodes": len(rows), "success": sum(r["success"] for r in rows),
-                       "refused": sum(r.get("cause") == "invalid_request" and r["pushes"] == 0 for r in rows)}
+                       "refused": sum(map(refused, rows))}
     counted = [r for r in closed if "replans_taken" in r]  # not counted through the nodes
     taken = {"taken": sum(r["replans_taken"] for r in counted), "replans": sum(r["replans"] for r in counted)} \
         if counted else None
