@@ -44,6 +44,24 @@ def test_the_closed_loop_report_splits_the_successes_by_the_first_push_s_sturdin
         "pushes spent 1, invalid request 1." in closed_loop.markdown(summary)
 
 
+def test_the_closed_loop_report_counts_successes_by_the_pushes_made_and_says_how_long_the_executions_took():
+    def record(success: bool, pushes: int, duration_s: float) -> dict:
+        return {"world": "w", "mode": "closed_loop", "steady_reach_margin_m": 0.05, "success": success,
+                "success_tight": success, "position_error_m": 0.01, "max_joint_speed_ratio": 0.9, "pushes": pushes,
+                "replans": 0, "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": False,
+                "pushes_cut": 0, "first_push_sturdy": True, "cause": "succeeded" if success else "no_closer_push",
+                "duration_s": duration_s}
+
+    summary = closed_loop.report([record(True, 1, 4.0), record(True, 2, 12.0), record(False, 2, 20.0),
+                                  record(False, 3, 50.0), record(True, 1, 3.0)])
+    steady = summary["explained"]["steady"]
+    assert steady["by_pushes"] == {1: {"episodes": 2, "success": 2}, 2: {"episodes": 2, "success": 1},
+                                   3: {"episodes": 1, "success": 0}}
+    assert steady["duration_s"]["median"] == 12.0 and steady["duration_s"]["max"] == 50.0
+    assert "Successes by the pushes an episode made: 1: 2 of 2, 2: 1 of 2, 3: 0 of 1. The executions took a median " \
+        "12.0 s (p90 38.0 s, the longest 50.0 s)." in closed_loop.markdown(summary)
+
+
 def test_a_missed_cube_is_placed_short_of_past_beside_or_turned_at_its_goal_along_the_push(settings, tmp_path):
     """The push runs from (1.0, 0.0) towards (1.1, 0.1): a cube resting 3 cm before the goal along it is short, 3 cm
     beyond it past, 3 cm across it beside, 1 cm off (within the 2 cm tolerance) turned; the report counts the misses'

@@ -153,7 +153,12 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                            for kind, flag in (("sturdy", True), ("not_sturdy", False))},
                 "miss_causes": dict(Counter(r["cause"] for r in rows if not r["success"]).most_common()),
                 "miss_places": dict(Counter(r["place"] for r in rows if not r["success"] and "place" in r)
-                                    .most_common())}
+                                    .most_common()),
+                "by_pushes": {n: {"episodes": sum(r["pushes"] == n for r in rows),
+                                  "success": sum(r["success"] and r["pushes"] == n for r in rows)}
+                              for n in sorted({r["pushes"] for r in rows})},
+                "duration_s": _stats(durations) | {"max": max(durations)}
+                if (durations := [r["duration_s"] for r in rows if "duration_s" in r]) else None}
     faces = {}  # per face a push towards the goal needs (targets.face_needed): the any distribution's
     for face in dict.fromkeys(r["face"] for r in closed if "face" in r):
         rows = [r for r in closed if r.get("face") == face]
@@ -223,6 +228,19 @@ def plot(records: list[dict[str, Any]], path: Path, tolerance_m: float) -> Path:
     return path
 
 
+def _pushes_and_durations(explained: dict[str, Any]) -> str:
+    """The explained line's tail: successes by the pushes an episode made, and how long the executions took (a
+    summary from before these were counted has neither)."""
+    text = ""
+    if by_pushes := explained.get("by_pushes"):
+        text += " Successes by the pushes an episode made: " + ", ".join(
+            f"{n}: {e['success']} of {e['episodes']}" for n, e in by_pushes.items()) + "."
+    if duration := explained.get("duration_s"):
+        text += (f" The executions took a median {duration['median']:.1f} s (p90 {duration['p90']:.1f} s, the longest "
+                 f"{duration['max']:.1f} s).")
+    return text
+
+
 def markdown(summary: dict[str, Any]) -> str:
     def cm(entry) -> str:
         return "-" if entry["median"] is None else f"{100 * entry['median']:.2f} / {100 * entry['p90']:.2f}"
@@ -267,7 +285,8 @@ def markdown(summary: dict[str, Any]) -> str:
                      f"{sturdy['episodes']} episodes, {sturdy['success']} of them successes; not sturdy in "
                      f"{fragile['episodes']}, {fragile['success']} successes. The misses by the executor's cause: "
                      f"{causes or 'none'}." + (f" Where their cubes came to rest against the goal, along the push "
-                                              f"from where the cube started: {places}." if places else ""))
+                                              f"from where the cube started: {places}." if places else "")
+                     + _pushes_and_durations(e))
     if faces := summary.get("faces"):
         lines.append("Closed loop by the face a push towards the goal needs (from where the cube starts): " + "; ".join(
             f"{face} {e['success']} of {e['episodes']} episodes ({e['refused']} refused before any push)"
