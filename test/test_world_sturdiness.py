@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from cito_ros.model.scene import start_configuration
+from cito_ros.model.simulator import Simulator
+from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.candidates import Executed, execute
 from cito_ros.planner.plan import plan_push
@@ -55,6 +57,26 @@ def test_a_plan_is_tracked_in_each_scaled_world_and_the_cube_ends_elsewhere_ther
     pairs = (model.pair_geom1 == cube) | (model.pair_geom2 == cube)
     assert pairs.any() and np.allclose(scaled.pair_friction[pairs, :2], 0.5 * model.pair_friction[pairs, :2])
     assert world is executor.simulator.in_world(0.5, 2.0) and world.nstate == executor.simulator.nstate
+
+
+def test_the_worlds_scenes_are_shared_by_simulators_of_one_scene_and_tracking_stops_where_told(settings):
+    """The executor's replans build a simulator per push length: its worlds are compiled once per scene. A caller
+    that rejects a plan at the first world over its bound (a replan) gets the same first worlds, and no more."""
+    settings = with_worlds(settings, (1.0, 0.5, 1.5, 0.5), (1.0, 0.5, 2.0, 2.0))
+    problem = build_problem(settings, PushRequest("vscm", 7)).problem
+    executor = physical_twin(problem, problem.cost)
+    shorter = Simulator(executor.scene, executor.simulator.horizon_s / 2, executor.simulator.control_period_s)
+    assert shorter.in_world(0.5, 2.0).scene is executor.simulator.in_world(0.5, 2.0).scene
+    reference = tracking.track(executor.simulator, executor.initial_state,
+                               executor.trajectory(executor.with_torques(
+                                   scripted_torques(executor, settings.stages.scripted, settings.tracking))),
+                               settings.tracking)
+    every = tracking.world_errors(executor.simulator, executor.initial_state, reference, settings.tracking,
+                                  executor.task, (0.0, 0.0))
+    seen = []
+    first_two = tracking.world_errors(executor.simulator, executor.initial_state, reference, settings.tracking,
+                                      executor.task, (0.0, 0.0), stop=lambda error: seen.append(error) or len(seen) == 2)
+    assert len(every) == 4 and first_two == every[:3] and seen == every[1:3]
 
 
 def test_scales_that_do_not_pair_up_are_refused(settings):

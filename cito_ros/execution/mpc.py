@@ -124,12 +124,18 @@ class PushModel:
         problem.remember(z, rollout.states, rollout.sensordata, rollout.warnings)
         return problem
 
-    def worst_world(self, simulator: Simulator, state: np.ndarray, reference, task: PushTask) -> float:
+    def worst_world(self, simulator: Simulator, state: np.ndarray, reference, task: PushTask,
+                    bound: float = math.inf) -> float:
         """The largest tolerance_ratio at rest against `task` of `reference` (a Trajectory of `simulator`'s
         horizon) tracked by the servo from `state` (servo_tracking) in each world of executor.world_*_scales (below
-        1: sturdy there)."""
-        errors = tracking.world_errors(simulator, state, reference, self.servo_tracking, task, (0.0, 0.0))
-        return max((tolerance_ratio(*error, self.settings.task) for error in errors), default=0.0)
+        1: sturdy there); above `bound`, the first world's above it (the rest are not tracked: a replan is
+        rejected there whatever they give, and tracking them all was 40 % of a replan)."""
+        def ratio(error: tuple[float, float]) -> float:
+            return tolerance_ratio(*error, self.settings.task)
+
+        errors = tracking.world_errors(simulator, state, reference, self.servo_tracking, task, (0.0, 0.0),
+                                       stop=lambda error: ratio(error) > bound)
+        return max(map(ratio, errors), default=0.0)
 
     def policy(self, start_s: float, state: np.ndarray, torques: np.ndarray, gains: np.ndarray | None = None,
                problem: PushProblem | None = None, worst_world: float | None = None,
@@ -212,7 +218,8 @@ class PushModel:
         if solver.gains is None or not (fresh.cost < start.cost and fresh.position_error_m <= start.position_error_m
                                         and speed <= 1.0):
             return None
-        worst_world = self.worst_world(problem.simulator, state, problem.trajectory(outcome.z), task)
+        worst_world = self.worst_world(problem.simulator, state, problem.trajectory(outcome.z), task,
+                                       running.worst_world)
         if worst_world > running.worst_world:
             return None
         # iLQR's cost only falls, so its outcome is the last kept step's, whose backward pass gave solver.gains

@@ -9,6 +9,7 @@ the same dynamics.
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import mujoco
@@ -21,6 +22,8 @@ from cito_ros.model.timing import PhaseClock
 from cito_ros.settings.typed_config import require_finite
 
 FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
+# per scene, its worlds' scenes by (friction, mass) scale (Simulator.in_world), as long as the scene lives
+_WORLD_SCENES: weakref.WeakKeyDictionary[Scene, dict[tuple[float, float], Scene]] = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True)
@@ -109,9 +112,13 @@ class Simulator:
         once per pair): the same state layout, another world."""
         key = (float(friction_scale), float(mass_scale))
         if key not in self._worlds:
-            scene = Scene(self.scene.contact_model, self.scene.config.with_object_scaled(*key),
-                          native=self.scene.native)
-            self._worlds[key] = Simulator(scene, self.horizon_s, self.control_period_s, nthread=1)
+            # the world's scene compiled once per scene: the executor's replans build a simulator per push length,
+            # and compiling their four worlds each time was 7 % of a replan
+            scenes = _WORLD_SCENES.setdefault(self.scene, {})
+            if key not in scenes:
+                scenes[key] = Scene(self.scene.contact_model, self.scene.config.with_object_scaled(*key),
+                                    native=self.scene.native)
+            self._worlds[key] = Simulator(scenes[key], self.horizon_s, self.control_period_s, nthread=1)
         return self._worlds[key]
 
     # ------------------------------------------------------------------ inputs

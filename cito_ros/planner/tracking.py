@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, Protocol
 
 import mujoco
 import numpy as np
@@ -87,17 +87,22 @@ def held_motion(simulator: Simulator, state: np.ndarray, gains: TrackingSettings
 
 
 def world_errors(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
-                 gains: TrackingSettings, task, nominal: tuple[float, float]) -> list[tuple[float, float]]:
+                 gains: TrackingSettings, task, nominal: tuple[float, float],
+                 stop: Callable[[tuple[float, float]], bool] | None = None) -> list[tuple[float, float]]:
     """The task's position and orientation errors at rest of `reference` tracked (and held) in each world of
     gains.world_friction_scales and world_mass_scales other than the model's own (1, 1), and first `nominal`,
     its tracking in the model, where there are any: held to the tolerances in the other worlds, a plan is held
-    to them in its own too (a plan the executor's servo tracked to 0.24 rad off in the model was taken)."""
+    to them in its own too (a plan the executor's servo tracked to 0.24 rad off in the model was taken). With
+    `stop`, the worlds after the first whose errors it holds for are not tracked (a caller that rejects the plan
+    there needs no more)."""
     errors = []
     for friction, mass in zip(gains.world_friction_scales, gains.world_mass_scales):
         if friction == 1.0 and mass == 1.0:
             continue
         world = simulator.in_world(friction, mass)
         errors.append(rest_errors(world, track(world, initial_state, reference, gains).final_state, task, gains))
+        if stop is not None and stop(errors[-1]):
+            break
     return [nominal, *errors] if errors else []
 
 
