@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from cito_ros.execution.episode import run_closed_loop, run_open_loop
-from cito_ros.execution.executor import ExecuteGoal
+from cito_ros.execution.executor import Ending, ExecuteGoal
 from cito_ros.execution.world import Mismatch, SimulatedWorld
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import Scene, start_configuration
@@ -102,7 +102,7 @@ def _stats(values: list[float]) -> dict[str, float | None]:
 def refused(record: dict[str, Any]) -> bool:
     """Whether the episode ended before any push, its goal refused (in process the ending says so, through the nodes
     the executor's cause)."""
-    return "invalid_request" in (record.get("ending"), record.get("cause")) and not record["pushes"]
+    return Ending.INVALID_REQUEST.value in (record.get("ending"), record.get("cause")) and not record["pushes"]
 
 
 def place(record: dict[str, Any], task) -> str:
@@ -146,6 +146,7 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
     explained = {}  # per zone: successes by whether the first push was sturdy, and the misses by their cause
     for name in ZONES:
         rows = [r for r in closed if zone(r["steady_reach_margin_m"]) == name and r.get("cause")]
+        durations = [r["duration_s"] for r in rows if "duration_s" in r]
         if rows:
             explained[name] = {
                 "sturdy": {kind: {"episodes": sum(r["first_push_sturdy"] is flag for r in rows),
@@ -157,8 +158,7 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                 "by_pushes": {n: {"episodes": sum(r["pushes"] == n for r in rows),
                                   "success": sum(r["success"] and r["pushes"] == n for r in rows)}
                               for n in sorted({r["pushes"] for r in rows})},
-                "duration_s": _stats(durations) | {"max": max(durations)}
-                if (durations := [r["duration_s"] for r in rows if "duration_s" in r]) else None}
+                "duration_s": _stats(durations) | {"max": max(durations)} if durations else None}
     faces = {}  # per face a push towards the goal needs (targets.face_needed): the any distribution's
     for face in dict.fromkeys(r["face"] for r in closed if "face" in r):
         rows = [r for r in closed if r.get("face") == face]
