@@ -93,9 +93,11 @@ class TestReach:
             assert build_problem(settings, PushRequest("vscm", 7, None, target, yaw)).task is not None
 
     def test_the_pushed_face_is_the_face_towards_the_arm_wherever_the_cube_is_turned(self, settings):
-        """A goal straight beside the cube is a side push for a cube square to the arm, and a goal 5.6 cm behind
-        the pushed face of one turned by 0.6 rad; a goal within the position tolerance behind it (a turn in
-        place) is posed. A cube turned by half a turn is the same cube: pushed away from the arm, not refused."""
+        """Without side faces: a goal straight beside the cube is a side push for a cube square to the arm, and a
+        goal 5.6 cm behind the pushed face of one turned by 0.6 rad; a goal within the position tolerance behind it
+        (a turn in place) is posed. A cube turned by half a turn is the same cube: pushed away from the arm, not
+        refused."""
+        settings = settings.with_overrides({"stages.scripted.side_faces.enabled": False})
         sideways = PushRequest("vscm", 7, None, [0.99, -0.10], 0.0, None, ((0.99, 0.0), 0.0))
         assert build_problem(settings, sideways).task is not None
         turned = PushRequest("vscm", 7, None, [0.99, -0.10], 0.0, None, ((0.99, 0.0), 0.6))

@@ -160,6 +160,10 @@ def test_the_any_distribution_draws_goals_all_over_the_region_each_labelled_with
     yaws = [goal.target_yaw_rad for goal in goals]
     assert min(yaws) < -2.5 and max(yaws) > 2.5
     assert {goal.face for goal in targets.draw_goals(60, 0, settings)[0]} == {"near"}  # forward: within 35 degrees
+    beside = targets.draw_goals(60, 0, settings, "beside")[0]
+    assert {goal.face for goal in beside} == {"side"}  # 50-130 degrees either side of +x: a side face's
+    assert {np.sign(goal.direction_rad) for goal in beside} == {-1.0, 1.0}
+    assert all(0.03 <= goal.push_m <= 0.25 and abs(goal.target_yaw_rad) <= 0.3 for goal in beside)
     with pytest.raises(ValueError, match="unknown goal distribution 'everywhere'"):
         targets.draw_goals(1, 0, settings, "everywhere")
 

@@ -127,8 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     targets = commands.add_parser("targets", help="seeded random pushes, judged by their execution")
     targets.add_argument("--n", type=positive_int, default=50, help="goals")
     targets.add_argument("--distribution", choices=DISTRIBUTIONS, default="forward",
-                         help="forward: pushes within 35 degrees of +x (the default); any: anywhere on the table the "
-                              "arm can push the cube to, any yaw")
+                         help="forward: pushes within 35 degrees of +x (the default); beside: 3-25 cm at 50-130 "
+                              "degrees either side of +x; any: anywhere on the table the arm can push the cube to, "
+                              "any yaw")
     targets.add_argument("--time-limit", type=float, default=None, metavar="S",
                          help="each solve's wall-clock limit (solver.time_limit_s; default: the settings')")
     targets.add_argument("--seed", type=int, default=0)

@@ -103,10 +103,10 @@ def scene_config(settings: Settings, request: PushRequest) -> SceneConfig:
 
 
 def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, settings: Settings) -> None:
-    """A goal one push on the face the plate pushes on (the object candidate's) cannot reach is refused at once
-    rather than searched for to the time limit:
-    - one behind that face by more than the success tolerance: the plate's force on the face points into the
-      object within the friction cone, so pushing moves the object away from the face's plane, never back;
+    """A goal one push cannot reach is refused at once rather than searched for to the time limit:
+    - one behind the near face (the object candidate's) by more than the success tolerance: the plate's force on
+      the face points into the object within the friction cone, so pushing moves the object away from the face's
+      plane, never back (nor does the tilted plate on a side face: a pull needs the far face);
     - one whose turn is more than the orientation tolerance plus task.turn_per_push_rad_per_m times the distance
       the object's centre moves, or plus task.max_push_turn_rad: an off-centre push turns the object as it moves
       it, no push turns it in place, and in a sweep of single pushes none turned it further (docs/results.md: A turn
@@ -117,7 +117,8 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
     behind_m = -float(np.dot(push_m, normal / np.linalg.norm(normal)))
     if behind_m > settings.task.success_position_error_m:
         raise ValueError(f"target is {100 * behind_m:.1f} cm behind the object's pushed face (back towards the arm): "
-                         f"a push on that face, the only one this planner pushes on, moves the object away from it")
+                         f"a push on that face (or on a side face) moves the object away from the arm, never back; "
+                         f"a pull needs its far face, which this planner does not push on")
     turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
     distance_m = float(np.linalg.norm(push_m))
     limits = settings.task
@@ -125,7 +126,7 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
                                                           limits.max_push_turn_rad)
     if turn > most_rad:
         raise ValueError(f"target turns the object by {turn:.2f} rad over a {100 * distance_m:.1f} cm push: one "
-                         f"push on the object's pushed face, the only one this planner pushes on, turns it by at most "
+                         f"push on one of the object's faces turns it by at most "
                          f"{most_rad:.2f} rad there ({limits.success_orientation_error_rad:g} rad plus "
                          f"{limits.turn_per_push_rad_per_m:g} rad per metre pushed, at most "
                          f"{limits.max_push_turn_rad:g}); a turn in place or a larger one needs pushes on other faces")

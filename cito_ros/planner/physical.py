@@ -32,11 +32,12 @@ from typing import Callable
 
 import numpy as np
 
-from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.builder import PushRequest, build_problem, scene_config
 from cito_ros.planner.candidates import Executed
 from cito_ros.planner.problem import PushProblem
 from cito_ros.planner.results import IterationLog
 from cito_ros.planner.scripted import scripted_torques
+from cito_ros.planner.side_faces import face_needed, plate_tilt, side_joint_path
 from cito_ros.planner.stages import Outcome, SolveClock, StartRun, physical_twin, stage_cost, touch_profile
 from cito_ros.settings import Settings
 
@@ -56,8 +57,15 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     labelled = len(stages.starts) > 1
     horizon_label = (lambda horizon_s: f"horizon {horizon_s:g} s, " if len(stages.horizon_scales) > 1 else "")
     first_horizon_s = settings.round_horizons_s[0]
-    # (settings overrides, discovery start fraction or None for a script, stage-name prefix)
+    # (settings overrides, discovery start fraction, None for a script or a SideStart, stage-name prefix)
     jobs = []
+    face = _side_face(settings, request)
+    if face is not None:  # first the face the goal needs; the near face's starts follow, as for any goal
+        side = stages.scripted.side_faces
+        horizon_s = settings.round_horizon_s(side.horizon_scale)
+        jobs = [({"horizon_s": horizon_s, "control_period_s": side.control_period_s,
+                  "stages.scripted.side_faces.offset_scale": scale}, SideStart(face),
+                 f"side face{f' {i + 1}' if i else ''}: ") for i, scale in enumerate(side.offset_scales)]
     if stages.scripted.enabled:
         jobs.append(({"horizon_s": first_horizon_s}, None, f"{horizon_label(first_horizon_s)}scripted: "))
         for i, (height_m, push_end, scale, gain_scale) in enumerate(stages.scripted.variants):
@@ -68,7 +76,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     jobs += [({"horizon_s": horizon_s}, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
              for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
     width = 2 if stages.parallel and len(jobs) > 1 else 1
-    scripts = sum(1 for _, fraction, _ in jobs if fraction is None)
+    scripts = sum(1 for _, fraction, _ in jobs if not isinstance(fraction, float))  # before the discoveries
     abandoned = [threading.Event() for _ in jobs]
     results: dict[int, tuple] = {}
 
@@ -135,6 +143,29 @@ def solve_physical(settings: Settings, request: PushRequest, *,
                                executed=executed)
 
 
+@dataclasses.dataclass(frozen=True)
+class SideStart:
+    """A start that is the scripted push on a side face (in quarter turns from the near face: side_faces.face_needed)."""
+
+    face: int
+
+
+def _side_face(settings: Settings, request: PushRequest) -> int | None:
+    """The side face the request's goal needs (side_faces.face_needed) where it is one of side_faces.faces and the
+    plate reaches its contact; else None: the near face's starts alone."""
+    side = settings.stages.scripted.side_faces
+    if request.target_position_m is None:
+        return None
+    where = scene_config(settings, request).object
+    face = face_needed(where.position_m, where.yaw_rad, request.target_position_m, settings)
+    if face not in side.faces:
+        return None
+    posed = build_problem(settings, request)
+    _, short_m = plate_tilt(posed.scene, posed.initial_state, posed.task, face, side,
+                            settings.stages.scripted.joint_margin_rad)
+    return face if short_m <= side.reach_tolerance_m else None
+
+
 class StartStop:
     """What a start's solver polls to stop: the solve's cancellation or the start's abandonment."""
 
@@ -146,17 +177,19 @@ class StartStop:
 
 
 def solve_start(clock: SolveClock, stop: StartStop, settings: Settings, overrides: dict, request: PushRequest,
-                 fraction: float | None, prefix: str):
+                 fraction: float | SideStart | None, prefix: str):
     """One start, under `settings` with `overrides` (its horizon, its script): the discovery drawing the
     plate onto the object from `fraction` of the horizon on (None: the scripted push, cito_ros.planner.scripted,
-    instead of a discovery), then the physical stages. Returns the best plan's execution (from which the
-    search derives its rank and goal margin) and the outcome."""
+    instead of a discovery; a SideStart: the push on its side face, cito_ros.planner.side_faces), then the physical
+    stages. Returns the best plan's execution (from which the search derives its rank and goal margin) and the
+    outcome."""
     began = time.perf_counter()
     settings = settings.with_overrides(overrides)  # the start's horizon and script: setup too
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
     T = base.n_steps
-    reach = np.where(np.arange(T) >= int((fraction or 0.0) * T), 1.0 / T, 0.0)
+    discovered = isinstance(fraction, float)
+    reach = np.where(np.arange(T) >= int((fraction if discovered else 0.0) * T), 1.0 / T, 0.0)
     eliminated = base.contact_model.slack_variable is not None and settings.stages.discovery.cccm == "slack_eliminated"
     discovery = PushProblem(base.simulator, base.initial_state, base.task,
                             stage_cost(settings, base.weights, True, settings.stages.discovery.reach_weight, reach,
@@ -166,8 +199,10 @@ def solve_start(clock: SolveClock, stop: StartStop, settings: Settings, override
     executor = physical_twin(discovery, discovery.cost)
     run = StartRun(clock, prefix, stop, settings.stages.ipopt_curvature)
     best = None  # (executed, torques, status)
-    if fraction is None:
-        torques = scripted_torques(executor, settings.stages.scripted, settings.tracking)
+    if not discovered:
+        script = settings.stages.scripted
+        path = None if fraction is None else side_joint_path(executor, script, fraction.face)
+        torques = scripted_torques(executor, script, settings.tracking, path)
         touch = touch_profile(executor, executor.with_torques(torques), settings.stages.touch_force_N)
         setup_s = time.perf_counter() - began
     else:
@@ -197,7 +232,7 @@ def solve_start(clock: SolveClock, stop: StartStop, settings: Settings, override
         if result.reaches(settings):
             break
     executed, chosen, status = best
-    if fraction is None:  # no discovery: the plan under the contact model is the returned torques
+    if not discovered:  # no discovery: the plan under the contact model is the returned torques
         planned_z = discovery.with_torques(chosen)
     return executed, Outcome(discovery, planned_z, chosen, executor, run.interrupted or status, tuple(run.log),
                              tuple(run.records), clock.elapsed(), setup_s)

@@ -149,11 +149,13 @@ def joint_path(problem, script: ScriptedSettings) -> JointPath:
     return JointPath(q, np.gradient(q, dt, axis=0))
 
 
-def scripted_torques(problem, script: ScriptedSettings, gains: TrackingSettings) -> np.ndarray:
+def scripted_torques(problem, script: ScriptedSettings, gains: TrackingSettings,
+                     path: JointPath | None = None) -> np.ndarray:
     """(N, 7) knot torques: the PD controller's (gains, kp and kd times script.gain_scale) torques tracking
-    joint_path, object contact included, averaged over each knot."""
+    `path` (default joint_path: the near face's push), object contact included, averaged over each knot."""
     simulator = problem.simulator
     gains = dataclasses.replace(gains, kp=tuple(script.gain_scale * k for k in gains.kp),
                                 kd=tuple(script.gain_scale * k for k in gains.kd))
-    executed = tracking.track(simulator, problem.initial_state, joint_path(problem, script), gains)
+    path = joint_path(problem, script) if path is None else path
+    executed = tracking.track(simulator, problem.initial_state, path, gains)
     return executed.control_torque_Nm.reshape(simulator.n_knots, simulator.steps_per_knot, -1).mean(axis=1)

@@ -40,6 +40,7 @@ from cito_ros.settings.stages import (
                                        PhysicalStages,
                                        ScriptedSettings,
                                        ScriptVariants,
+                                       SideFaceSettings,
                                        StagesSettings,
 )
 
@@ -47,4 +48,5 @@ __all__ = ["CONTACT_MODEL_NAMES", "CccmSettings", "ContactModelsSettings", "ScmS
            "WeightsSettings", "ExecutorSettings", "LimitSettings", "TrackingSettings", "PLANNER_FILE", "HorizonSettings", "NodeSettings",
            "Settings", "TaskSettings", "load_parameters", "load_settings", "DEFAULT_SCENE", "ObjectConfig",
            "SceneConfig", "DerivativeSettings", "SolverSettings", "IPOPT_CURVATURES", "DiscoverySettings",
-           "PhysicalStage", "PhysicalStages", "ScriptedSettings", "ScriptVariants", "StagesSettings"]
+           "PhysicalStage", "PhysicalStages", "ScriptedSettings", "ScriptVariants", "SideFaceSettings",
+           "StagesSettings"]

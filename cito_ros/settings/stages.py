@@ -75,6 +75,53 @@ class ScriptVariants:
 
 
 @dataclass(frozen=True)
+class SideFaceSettings:
+    """Scripted pushes on the object's side faces, for goals more than 45 degrees off the near face's normal
+    (cito_ros.planner.side_faces)."""
+
+    enabled: bool = setting("plan goals beside the object by a push on a side face (false: refused)")
+    horizon_scale: float = setting("the side push's horizon, in horizon_s: the transit around the object's corner "
+                                   "takes most of horizon_s within the joint speed limits", positive=True)
+    control_period_s: float = setting("the side push's knot period (s): the transit's torques, replayed open loop at "
+                                      "horizon_s's period, swing the arm off its path", positive=True)
+    faces: tuple[int, ...] = setting("the side faces planned, in quarter turns counter-clockwise from the near face "
+                                     "(1, 3); a goal needing another is refused")
+    offset_scales: tuple[float, ...] = setting("one scripted start per entry: the contact's offset along the face "
+                                               "(the one that turns the object by the goal's turn) times this")
+    offset_scale: float = setting("the start's entry of offset_scales (set per start)")
+    tilts_rad: tuple[float, ...] = setting("the plate normal turned from the side face's inward normal away from the "
+                                           "arm (rad): the first at which the plate reaches the contact")
+    contact_height_m: float = setting("height of the plate centre above the object's centre (m)")
+    standoff_m: float = setting("the transit ends with the plate this far off the face (m)", positive=True)
+    via_front_m: float = setting("the transit's via point: this far in front of the near face (m)")
+    via_aside_m: float = setting("and this far out beside the side face (m)")
+    transit_fraction: float = setting("fraction of the horizon the transit takes", positive=True)
+    max_transit_fraction: float = setting("and at most, where the joints would exceed the script's speed_fraction of "
+                                          "their limits", positive=True)
+    contact_fraction: float = setting("fraction of the rest where the plate is on the face", positive=True)
+    push_end_fraction: float = setting("fraction of the rest where the push ends", positive=True)
+    turn_per_offset: float = setting("the object's turn per metre pushed per metre of contact offset (rad/m^2, "
+                                     "measured)", positive=True)
+    max_offset_m: float = setting("the contact offset from the face centre at most (m)", minimum=0.0)
+    normal_weight: float = setting("weight of the plate normal against its position in the inverse kinematics (m)",
+                                   positive=True)
+    reach_tolerance_m: float = setting("a goal whose side contact the plate falls short of by more than this, at "
+                                       "the push's start or end, is refused (m)", positive=True)
+
+    def check(self, path: str) -> None:
+        transit_ok = 0.0 < self.transit_fraction <= self.max_transit_fraction < 1.0
+        if not transit_ok or not 0.0 < self.contact_fraction < self.push_end_fraction <= 1.0:
+            raise ValueError(f"{path}: 0 < transit_fraction <= max_transit_fraction < 1 and 0 < contact_fraction < "
+                             f"push_end_fraction <= 1 are needed, got {self.transit_fraction}, "
+                             f"{self.max_transit_fraction}, {self.contact_fraction}, {self.push_end_fraction}")
+        if not self.offset_scales or not self.tilts_rad:
+            raise ValueError(f"{path}.offset_scales and tilts_rad must list at least one entry each")
+        if not set(self.faces) <= {1, 3}:
+            raise ValueError(f"{path}.faces must list side faces, 1 or 3 (quarter turns from the near face), "
+                             f"got {list(self.faces)}")
+
+
+@dataclass(frozen=True)
 class ScriptedSettings:
     """The scripted push, the physical pipeline's first start (cito_ros.planner.scripted), and its variants."""
 
@@ -102,6 +149,7 @@ class ScriptedSettings:
     follow_face_margin_m: float = setting("the face is followed only for targets at least this far inside the "
                                           "steady push reach (m)")
     variants: ScriptVariants = setting("further scripted starts where the first misses")
+    side_faces: SideFaceSettings = setting("pushes on the object's side faces")
 
     def check(self, path: str) -> None:
         for push_end in (self.push_end_fraction, *self.variants.push_end_fraction):

@@ -1,10 +1,12 @@
 """`cito-bench targets`: seeded random pushes, solved by each contact model, judged by execution.
 
-ROS-free. Goals are drawn from a seeded generator, in one of two distributions (DISTRIBUTIONS), both
+ROS-free. Goals are drawn from a seeded generator, in one of three distributions (DISTRIBUTIONS), all
 from the start pose q0(beta) for beta uniform in [4, 7] (initial distances 0.11-0.45 m):
 
 - forward: a push of 5-35 cm in a direction within +-35 degrees of +x from the cube's start, a goal
   yaw within +-0.5 rad;
+- beside: a push of 3-25 cm in a direction 50-130 degrees either side of +x from the cube's start
+  (mostly a side face's, cito_ros.planner.side_faces), a goal yaw within +-0.3 rad;
 - any: a goal anywhere on the table that the arm can push the cube to (the table top, the cube
   inside it, within the push reach of the arm base: the region the planner's checks accept, drawn
   in the report), a goal yaw in [-pi, pi).
@@ -25,11 +27,12 @@ from typing import Any, Iterable
 import numpy as np
 
 from cito_ros.model.contact_models import contact_model
-from cito_ros.model.scene import Scene, pushed_face, start_configuration
+from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, build_problem, make_task
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult
+from cito_ros.planner.side_faces import FAR, NEAR, face_for
 from cito_ros.settings import Settings, load_settings
 
 MODELS = ("cccm", "scm", "vscm")
@@ -37,7 +40,10 @@ BETA_RANGE = (4.0, 7.0)
 PUSH_RANGE_M = (0.05, 0.35)
 DIRECTION_RANGE_RAD = math.radians(35.0)
 YAW_RANGE_RAD = 0.5
-DISTRIBUTIONS = ("forward", "any")
+BESIDE_PUSH_RANGE_M = (0.03, 0.25)
+BESIDE_DIRECTION_RANGE_RAD = (math.radians(50.0), math.radians(130.0))
+BESIDE_YAW_RANGE_RAD = 0.3
+DISTRIBUTIONS = ("forward", "beside", "any")
 FACES = ("near", "side", "far")
 
 
@@ -57,9 +63,9 @@ def face_needed(direction_rad: float, object_position_m, object_yaw_rad: float) 
     the near face (the face towards the arm, scene.pushed_face, whose inward normal points away from it) for
     directions within 45 degrees of that normal, a side face for those within 45 degrees of the normal turned by
     90 degrees either way, else the far face (a pull back towards the arm)."""
-    normal_rad = object_yaw_rad + pushed_face(object_position_m, object_yaw_rad) * math.pi / 2
-    off = abs(math.remainder(direction_rad - normal_rad, 2 * math.pi))
-    return FACES[0] if off <= math.pi / 4 else FACES[1] if off <= 3 * math.pi / 4 else FACES[2]
+    target = np.asarray(object_position_m, dtype=float) + [math.cos(direction_rad), math.sin(direction_rad)]
+    quarter = face_for(object_position_m, object_yaw_rad, target)
+    return FACES[0] if quarter == NEAR else FACES[2] if quarter == FAR else FACES[1]
 
 
 def region(settings: Settings, scene: Scene | None = None) -> dict[str, Any]:
@@ -91,6 +97,11 @@ def draw_goals(n: int, seed: int, settings: Settings | None = None, distribution
             push = float(rng.uniform(*PUSH_RANGE_M))
             direction = float(rng.uniform(-DIRECTION_RANGE_RAD, DIRECTION_RANGE_RAD))
             yaw = float(rng.uniform(-YAW_RANGE_RAD, YAW_RANGE_RAD))
+            target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
+        elif distribution == "beside":
+            push = float(rng.uniform(*BESIDE_PUSH_RANGE_M))
+            direction = float(rng.choice((-1.0, 1.0)) * rng.uniform(*BESIDE_DIRECTION_RANGE_RAD))
+            yaw = float(rng.uniform(-BESIDE_YAW_RANGE_RAD, BESIDE_YAW_RANGE_RAD))
             target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
         else:  # the whole table top the cube fits on; make_task refuses what is beyond the arm's push reach
             target = tuple(float(v) for v in rng.uniform(where["table_low_m"], where["table_high_m"]))

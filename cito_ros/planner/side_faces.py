@@ -1,0 +1,200 @@
+"""Pushes on the object's side faces, for goals beside it: the scripted start of a push no push on the near face
+(the face towards the arm) can make. ROS-free.
+
+A push on the near face moves the object away from the arm, within the friction cone of that face's normal; a
+goal more than 45 degrees off that normal needs the face whose inward normal is nearest the push (`face_needed`).
+Face-on to a side face the plate is beyond the joints' reach for a cube 0.99 m out (by 3 cm: docs/experiments.md),
+but turned by one of `tilts_rad` away from the arm it reaches the face anywhere along it, and its curved rim (the
+plate is an ellipsoid) presses along the face's normal. An arm moving straight there would go through the object, so the
+path is a joint-space transit past a point in front of the near face and beside the side face to `standoff_m` off
+the face, then the plate onto the face and through the push. The contact point's offset along the face turns the
+object as it moves (`turn_per_offset`); the physical stages refine the tracked path's torques as they refine the
+near face's scripts (cito_ros.planner.scripted).
+"""
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+from mujoco import minimize
+
+from cito_ros.model.scene import pushed_face
+from cito_ros.model.simulator import FULL_PHYSICS
+from cito_ros.planner.scripted import _at_start, _cross, _minimum_jerk
+from cito_ros.planner.task import turn_rad, yaw_of
+from cito_ros.planner.tracking import JointPath
+from cito_ros.settings import ScriptedSettings, SideFaceSettings
+
+NEAR, FAR = 0, 2           # face_towards' quarter turns from the near face (1 and 3: the side faces)
+POSTURE_WEIGHT_M = 0.05    # the inverse kinematics' first pull towards its start posture (m/rad)
+
+
+def face_towards(near_normal_rad: float, direction_rad: float) -> int:
+    """The face whose inward normal is nearest a push in direction_rad, in quarter turns (counter-clockwise) from the
+    near face, whose inward normal points at near_normal_rad (both world yaws)."""
+    return round(turn_rad(near_normal_rad, direction_rad) / (math.pi / 2)) % 4
+
+
+def face_for(object_xy, object_yaw_rad: float, target_xy) -> int:
+    """face_towards for a push from a cube at object_xy with object_yaw_rad towards target_xy, its near face the
+    one towards the arm base (scene.pushed_face, where the object candidate sits)."""
+    push = np.asarray(target_xy, dtype=float)[:2] - np.asarray(object_xy, dtype=float)[:2]
+    if np.linalg.norm(push) < 1e-9:
+        return NEAR
+    near_rad = object_yaw_rad + pushed_face(object_xy, object_yaw_rad) * math.pi / 2
+    return face_towards(near_rad, math.atan2(push[1], push[0]))
+
+
+def face_needed(object_xy, object_yaw_rad: float, target_xy, settings) -> int:
+    """face_for where stages.scripted.side_faces is enabled and the goal is further from the object than the success
+    tolerance; else NEAR (the near face's pushes, which also hold an object at its goal)."""
+    distance_m = np.linalg.norm(np.asarray(target_xy, dtype=float)[:2] - np.asarray(object_xy, dtype=float)[:2])
+    if not settings.stages.scripted.side_faces.enabled or distance_m <= settings.task.success_position_error_m:
+        return NEAR
+    return face_for(object_xy, object_yaw_rad, target_xy)
+
+
+class SideGeometry:
+    """Where the plate stands on a side face: the face's inward normal, the tilted plate normal, the plate centre
+    at the contact point and off the face, and the transit's via point, all in the world frame."""
+
+    def __init__(self, scene, initial_state: np.ndarray, target_m: np.ndarray, target_yaw_rad: float,
+                 face: int, side: SideFaceSettings, tilt_rad: float, offset_scale: float = 1.0):
+        qpos = scene.object_qpos(initial_state)
+        centre, half = qpos[:3], float(scene.object_half_size[0])
+        away = scene.inward_normals(qpos[None, 3:7])[0]          # the near face's: away from the arm
+        quarter = face * math.pi / 2
+        inward = np.array([math.cos(quarter) * away[0] - math.sin(quarter) * away[1],
+                           math.sin(quarter) * away[0] + math.cos(quarter) * away[1], 0.0])
+        self.inward = inward
+        self.normal = math.cos(tilt_rad) * inward + math.sin(tilt_rad) * away
+        self.push = np.asarray(target_m, dtype=float) - centre
+        distance = float(np.linalg.norm(self.push[:2]))
+        # the offset along the face (towards `away`) that turns the object by the goal's turn over this push:
+        # a contact nearer the arm than the face centre turns it the way inward x away points
+        handed = float(np.cross(inward, away)[2])
+        turn = turn_rad(yaw_of(qpos[3:7]), target_yaw_rad)
+        offset = 0.0 if distance < 1e-9 else -turn / (handed * side.turn_per_offset * distance)
+        self.offset_m = offset_scale * float(np.clip(offset, -side.max_offset_m, side.max_offset_m))
+        radius, half_thickness = scene.plate_radius_m, scene.plate_half_thickness_m
+        along = float(inward @ self.normal)
+        extent = math.sqrt(radius ** 2 * (1 - along ** 2) + half_thickness ** 2 * along ** 2)
+        touch = (radius ** 2 * inward + (half_thickness ** 2 - radius ** 2) * along * self.normal) / extent
+        lift = np.array([0.0, 0.0, side.contact_height_m])
+        self.contact = centre - half * inward + self.offset_m * away - touch + lift
+        self.off_face = self.contact - side.standoff_m * inward
+        self.via = centre - (half + side.via_front_m) * away - (half + side.via_aside_m) * inward + lift
+
+
+def _plate_pose_q(scene, data: mujoco.MjData, position: np.ndarray, normal: np.ndarray, start_q: np.ndarray,
+                  margin_rad: float, normal_weight: float) -> tuple[np.ndarray, float]:
+    """Joint angles that put the plate centre at `position` with its normal along `normal`, from start_q, every
+    joint margin_rad inside its range (mujoco.minimize.least_squares), and the plate's distance from `position`."""
+    low, high = scene.joint_range[:, 0] + margin_rad, scene.joint_range[:, 1] - margin_rad
+    site, qadr = scene.robot_site_id, scene.arm_qpos_adr
+
+    def residual(x: np.ndarray, posture: float) -> np.ndarray:
+        columns = []
+        for q in x.T:
+            data.qpos[qadr] = q
+            mujoco.mj_kinematics(scene.model, data)
+            columns.append(np.r_[data.site_xpos[site] - position,
+                                 normal_weight * (data.site_xmat[site].reshape(3, 3)[:, 2] - normal),
+                                 posture * (q - start_q)])
+        return np.array(columns).T
+
+    # first near start_q, then exactly there: unpulled, the least squares lands on far-away wrist postures the
+    # transit cannot reach within the joint speed limits
+    q = np.clip(start_q, low, high)
+    for posture in (POSTURE_WEIGHT_M, 0.0):
+        q, _ = minimize.least_squares(q, lambda x, pull=posture: residual(x, pull), bounds=(low, high), verbose=0)
+    return q, float(np.linalg.norm(residual(q[:, None], 0.0)[:3, 0]))
+
+
+def plate_tilt(scene, initial_state: np.ndarray, task, face: int, side: SideFaceSettings,
+               margin_rad: float) -> tuple[float, float]:
+    """The first of side.tilts_rad at which the plate reaches the side face's contact at the push's start and at its
+    end (by inverse kinematics alone), and how far it falls short there (at the last tilt where none reaches): a
+    steeper tilt reaches further out along the face, and turns the object more as it pushes."""
+    data = mujoco.MjData(scene.model)
+    mujoco.mj_setState(scene.model, data, initial_state, FULL_PHYSICS)
+    q0 = data.qpos[scene.arm_qpos_adr].copy()
+    for tilt in side.tilts_rad:
+        geometry = SideGeometry(scene, initial_state, task.target_position_m, task.target_yaw_rad, face, side, tilt)
+        q, short_start = _plate_pose_q(scene, data, geometry.contact, geometry.normal, q0, margin_rad,
+                                       side.normal_weight)
+        _, short_end = _plate_pose_q(scene, data, geometry.contact + geometry.push, geometry.normal, q, margin_rad,
+                                     side.normal_weight)
+        if max(short_start, short_end) <= side.reach_tolerance_m:
+            break
+    return tilt, max(short_start, short_end)
+
+
+def side_joint_path(problem, script: ScriptedSettings, face: int) -> JointPath:
+    """The side push in joint space over the problem's horizon, the plate at plate_tilt: to side.transit_fraction
+    (longer, up to max_transit_fraction, where the joints would exceed script.speed_fraction of their limits) a
+    transit through the via point (a cubic Hermite spline in the joint angles, not stopping there) to the plate
+    standoff_m off the face; then, by damped least squares on the plate's position and normal, each step within
+    script.speed_fraction of the joint speed limits, onto the face by contact_fraction and along the push, the plate
+    following the object's centre from its start to the target by push_end_fraction."""
+    side = script.side_faces
+    scene = problem.simulator.scene
+    model, site, qadr, dofs = scene.model, scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
+    tilt, _ = plate_tilt(scene, problem.initial_state, problem.task, face, side, script.joint_margin_rad)
+    geometry = SideGeometry(scene, problem.initial_state, problem.task.target_position_m, problem.task.target_yaw_rad,
+                            face, side, tilt, side.offset_scale)
+    data = _at_start(problem)
+    q0 = data.qpos[qadr].copy()
+    # both from the start posture: the via point's from the contact's could lie beyond it, and the spline swung the
+    # plate through the object; the contact's from the via point's could stop short of the contact
+    q_via, _ = _plate_pose_q(scene, data, geometry.via, geometry.normal, q0, script.joint_margin_rad,
+                             side.normal_weight)
+    q_off, _ = _plate_pose_q(scene, data, geometry.off_face, geometry.normal, q0, script.joint_margin_rad,
+                             side.normal_weight)
+    dt, T = model.opt.timestep, problem.simulator.n_steps
+
+    def hermite(q_a, q_b, v_a, v_b, steps):
+        s = np.linspace(0.0, 1.0, steps + 1)[:, None]
+        duration = steps * dt
+        return ((2 * s ** 3 - 3 * s ** 2 + 1) * q_a + (s ** 3 - 2 * s ** 2 + s) * duration * v_a
+                + (-2 * s ** 3 + 3 * s ** 2) * q_b + (s ** 3 - s ** 2) * duration * v_b)
+
+    def spline(steps):
+        through = (q_off - q0) / (steps * dt)  # the velocity at the via point
+        return np.vstack([hermite(q0, q_via, np.zeros_like(q0), through, steps // 2),
+                          hermite(q_via, q_off, through, np.zeros_like(q0), steps - steps // 2)[1:]])
+
+    # transit_fraction of the horizon, or longer (up to max_transit_fraction) where the joints would move faster
+    # than script.speed_fraction of their limits
+    n_transit = max(2, int(side.transit_fraction * T))
+    transit = spline(n_transit)
+    speed = np.max(np.abs(np.diff(transit, axis=0)) / (scene.velocity_limit * dt))
+    if speed > script.speed_fraction:
+        n_transit = min(int(math.ceil(n_transit * speed / script.speed_fraction)), int(side.max_transit_fraction * T))
+        transit = spline(n_transit)
+    low = scene.joint_range[:, 0] + script.joint_margin_rad
+    high = scene.joint_range[:, 1] - script.joint_margin_rad
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    weight, damping = script.orientation_weight, script.damping * np.eye(6)
+    step_max = script.speed_fraction * scene.velocity_limit * dt  # per step, as the near face's script
+    q = [transit[-1]]
+    data.qpos[qadr] = transit[-1]
+    pushing = T - n_transit
+    for k in range(1, pushing + 1):
+        s = k / pushing
+        onto = _minimum_jerk(s / side.contact_fraction)
+        along = _minimum_jerk((s - side.contact_fraction) / (side.push_end_fraction - side.contact_fraction))
+        target = geometry.off_face + (geometry.contact - geometry.off_face) * onto + geometry.push * along
+        for _ in range(script.ik_iterations):
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            mujoco.mj_jacSite(model, data, jacp, jacr, site)
+            error = np.concatenate((target - data.site_xpos[site],
+                                    weight * _cross(data.site_xmat[site][2::3], geometry.normal)))
+            J = np.vstack([jacp[:, dofs], weight * jacr[:, dofs]])
+            step = np.clip(J.T @ np.linalg.solve(J @ J.T + damping, error), -step_max, step_max)
+            data.qpos[qadr] = np.clip(q[-1] + np.clip(data.qpos[qadr] + step - q[-1], -step_max, step_max), low, high)
+        q.append(data.qpos[qadr].copy())
+    path = np.vstack([transit, np.array(q[1:])])
+    return JointPath(path, np.gradient(path, dt, axis=0))

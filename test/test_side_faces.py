@@ -1,0 +1,73 @@
+"""Pushes on the cube's side faces (cito_ros.planner.side_faces): the face a goal needs, the transit around the
+cube, the refusals, and a side push planned and executed. Real MuJoCo, real solves."""
+import numpy as np
+import pytest
+
+from cito_ros.planner import side_faces
+from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.physical import _side_face
+from cito_ros.planner.plan import plan_push
+from cito_ros.planner.stages import physical_twin
+
+
+def posed(settings, target, yaw=0.0, object_pose=None):
+    return build_problem(settings, PushRequest("vscm", 5.0, None, target, yaw, None, object_pose))
+
+
+@pytest.mark.parametrize("target, face", [((1.10, 0.02), side_faces.NEAR), ((0.99, 0.12), 1), ((0.99, -0.12), 3),
+                                          ((0.85, 0.03), side_faces.FAR), ((1.05, 0.10), 1), ((0.99, 0.015), 0)])
+def test_a_goal_needs_the_face_whose_inward_normal_is_nearest_the_push(settings, target, face):
+    # the last within the position tolerance of the cube: the near face's pushes hold it there
+    assert side_faces.face_needed((0.99, 0.0), 0.0, target, settings) == face
+
+
+def test_a_turned_cube_is_pushed_sideways_on_the_face_that_is_then_beside_it(settings):
+    # turned by a quarter turn, another of the cube's faces is the one towards the arm (scene.pushed_face): the count
+    # starts there, and a push along +y is still on side face 1
+    for yaw in (np.pi / 2, 0.3, -0.3):
+        assert side_faces.face_needed((0.99, 0.0), yaw, (0.99, 0.12), settings) == 1
+    assert side_faces.face_needed((0.99, 0.0), 0.0, (0.99, 0.12),
+                                  settings.with_overrides({"stages.scripted.side_faces.enabled": False})) == 0
+
+
+def test_the_side_transit_stays_clear_of_the_cube_until_the_plate_comes_onto_its_face(settings):
+    side = settings.stages.scripted.side_faces
+    settings = settings.with_overrides({"horizon_s": settings.round_horizon_s(side.horizon_scale),
+                                        "control_period_s": side.control_period_s})
+    for target, yaw in (((0.99, 0.12), 0.0), ((1.03, 0.15), -0.2), ((0.98, 0.05), 0.1)):  # on side face 1
+        planning = posed(settings, target, yaw)
+        problem = physical_twin(planning.problem, planning.problem.cost)
+        path = side_faces.side_joint_path(problem, settings.stages.scripted, 1)
+        scene = problem.scene
+        transit = int(side.transit_fraction * problem.simulator.n_steps)
+        clearances = [scene.arm_clearance(scene.data_at(q), 0.1)[0] for q in path.q[:transit + 1:10]]
+        assert min(clearances) > 0.01, target  # the plate ends standoff_m off the face, the arm clear all the way
+        assert np.max(np.abs(path.qdot) / scene.velocity_limit) < 1.0
+
+
+def test_a_pull_is_refused_with_the_reason(settings):
+    with pytest.raises(ValueError, match=r"10.0 cm behind the object's pushed face .* a pull needs its far face"):
+        posed(settings, (0.89, 0.0))
+
+
+def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_the_near_faces_follow(settings):
+    beside = PushRequest("vscm", 5.0, None, (0.99, 0.12), 0.0)
+    assert _side_face(settings, beside) == 1
+    # the cube 11 cm further out: its side faces are beyond the tilted plate, and only the near face is tried
+    out = PushRequest("vscm", 5.0, None, (1.10, 0.12), 0.0, None, ((1.10, 0.0), 0.0))
+    problem = build_problem(settings, out)
+    tilt, short_m = side_faces.plate_tilt(problem.scene, problem.initial_state, problem.task, 1,
+                                          settings.stages.scripted.side_faces, settings.stages.scripted.joint_margin_rad)
+    assert short_m > settings.stages.scripted.side_faces.reach_tolerance_m
+    assert tilt == settings.stages.scripted.side_faces.tilts_rad[-1]
+    assert _side_face(settings, out) is None
+    # the other side face is not planned (faces: [1]): its goals go to the near face as before
+    assert _side_face(settings, PushRequest("vscm", 5.0, None, (0.99, -0.12), 0.0)) is None
+
+
+def test_a_side_push_brings_the_cube_beside_it_to_the_goal_executed_without_the_virtual_force(settings):
+    # straight beside the cube, where every near-face push ran to the time limit and missed (docs/results.md)
+    result = plan_push("vscm", 5.0, settings=settings, target_position_m=np.array([0.99, 0.15]))
+    assert result.metrics.success, result.metrics
+    assert result.metrics.position_error_m < settings.task.success_position_error_m
+    assert result.stages[0].name.startswith("side face")
