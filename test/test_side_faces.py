@@ -5,7 +5,7 @@ import pytest
 
 from cito_ros.planner import side_faces
 from cito_ros.planner.builder import PushRequest, build_problem
-from cito_ros.planner.physical import _side_face
+from cito_ros.planner.physical import _side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.stages import physical_twin
 
@@ -37,7 +37,9 @@ def test_the_side_transit_stays_clear_of_the_cube_until_the_plate_comes_onto_its
     for target, yaw in (((0.99, 0.12), 0.0), ((1.03, 0.15), -0.2), ((0.98, 0.05), 0.1)):  # on side face 1
         planning = posed(settings, target, yaw)
         problem = physical_twin(planning.problem, planning.problem.cost)
-        path = side_faces.side_joint_path(problem, settings.stages.scripted, 1)
+        tilt, _ = side_faces.plate_tilt(problem.scene, problem.initial_state, problem.task, 1, side,
+                                        settings.stages.scripted.joint_margin_rad)
+        path = side_faces.side_joint_path(problem, settings.stages.scripted, 1, tilt)
         scene = problem.scene
         transit = int(side.transit_fraction * problem.simulator.n_steps)
         clearances = [scene.arm_clearance(scene.data_at(q), 0.1)[0] for q in path.q[:transit + 1:10]]
@@ -52,7 +54,7 @@ def test_a_pull_is_refused_with_the_reason(settings):
 
 def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_the_near_faces_follow(settings):
     beside = PushRequest("vscm", 5.0, None, (0.99, 0.12), 0.0)
-    assert _side_face(settings, beside) == 1
+    assert _side_start(settings, beside).face == 1
     # the cube 11 cm further out: its side faces are beyond the tilted plate, and only the near face is tried
     out = PushRequest("vscm", 5.0, None, (1.10, 0.12), 0.0, None, ((1.10, 0.0), 0.0))
     problem = build_problem(settings, out)
@@ -60,9 +62,9 @@ def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_th
                                           settings.stages.scripted.side_faces, settings.stages.scripted.joint_margin_rad)
     assert short_m > settings.stages.scripted.side_faces.reach_tolerance_m
     assert tilt == settings.stages.scripted.side_faces.tilts_rad[-1]
-    assert _side_face(settings, out) is None
+    assert _side_start(settings, out) is None
     # the other side face is not planned (faces: [1]): its goals go to the near face as before
-    assert _side_face(settings, PushRequest("vscm", 5.0, None, (0.99, -0.12), 0.0)) is None
+    assert _side_start(settings, PushRequest("vscm", 5.0, None, (0.99, -0.12), 0.0)) is None
 
 
 def test_a_side_push_brings_the_cube_beside_it_to_the_goal_executed_without_the_virtual_force(settings):

@@ -59,13 +59,13 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     first_horizon_s = settings.round_horizons_s[0]
     # (settings overrides, discovery start fraction, None for a script or a SideStart, stage-name prefix)
     jobs = []
-    face = _side_face(settings, request)
-    if face is not None:  # first the face the goal needs; the near face's starts follow, as for any goal
-        side = stages.scripted.side_faces
-        horizon_s = settings.round_horizon_s(side.horizon_scale)
-        jobs = [({"horizon_s": horizon_s, "control_period_s": side.control_period_s,
-                  "stages.scripted.side_faces.offset_scale": scale}, SideStart(face),
-                 f"side face{f' {i + 1}' if i else ''}: ") for i, scale in enumerate(side.offset_scales)]
+    side = _side_start(settings, request)
+    if side is not None:  # first the face the goal needs; the near face's starts follow, as for any goal
+        faces = stages.scripted.side_faces
+        overrides = {"horizon_s": settings.round_horizon_s(faces.horizon_scale),
+                     "control_period_s": faces.control_period_s}
+        jobs = [(overrides, dataclasses.replace(side, offset_scale=scale), f"side face{f' {i + 1}' if i else ''}: ")
+                for i, scale in enumerate(faces.offset_scales)]
     if stages.scripted.enabled:
         jobs.append(({"horizon_s": first_horizon_s}, None, f"{horizon_label(first_horizon_s)}scripted: "))
         for i, (height_m, push_end, scale, gain_scale) in enumerate(stages.scripted.variants):
@@ -145,14 +145,16 @@ def solve_physical(settings: Settings, request: PushRequest, *,
 
 @dataclasses.dataclass(frozen=True)
 class SideStart:
-    """A start that is the scripted push on a side face (in quarter turns from the near face: side_faces.face_needed)."""
+    """A start that is the scripted push on a side face (side_faces.side_joint_path's face, tilt and contact offset)."""
 
-    face: int
+    face: int                # in quarter turns from the near face (side_faces.face_needed)
+    tilt_rad: float          # side_faces.plate_tilt's
+    offset_scale: float = 1.0  # an entry of side_faces.offset_scales
 
 
-def _side_face(settings: Settings, request: PushRequest) -> int | None:
-    """The side face the request's goal needs (side_faces.face_needed) where it is one of side_faces.faces and the
-    plate reaches its contact; else None: the near face's starts alone."""
+def _side_start(settings: Settings, request: PushRequest) -> SideStart | None:
+    """The side face the request's goal needs (side_faces.face_needed), where it is one of side_faces.faces and the
+    plate reaches its contact, with the tilt that reaches it; else None: the near face's starts alone."""
     side = settings.stages.scripted.side_faces
     if request.target_position_m is None:
         return None
@@ -161,9 +163,9 @@ def _side_face(settings: Settings, request: PushRequest) -> int | None:
     if face not in side.faces:
         return None
     posed = build_problem(settings, request)
-    _, short_m = plate_tilt(posed.scene, posed.initial_state, posed.task, face, side,
-                            settings.stages.scripted.joint_margin_rad)
-    return face if short_m <= side.reach_tolerance_m else None
+    tilt_rad, short_m = plate_tilt(posed.scene, posed.initial_state, posed.task, face, side,
+                                   settings.stages.scripted.joint_margin_rad)
+    return SideStart(face, tilt_rad) if short_m <= side.reach_tolerance_m else None
 
 
 class StartStop:
@@ -201,7 +203,8 @@ def solve_start(clock: SolveClock, stop: StartStop, settings: Settings, override
     best = None  # (executed, torques, status)
     if not discovered:
         script = settings.stages.scripted
-        path = None if fraction is None else side_joint_path(executor, script, fraction.face)
+        path = None if fraction is None else side_joint_path(executor, script, fraction.face, fraction.tilt_rad,
+                                                             fraction.offset_scale)
         torques = scripted_torques(executor, script, settings.tracking, path)
         touch = touch_profile(executor, executor.with_torques(torques), settings.stages.touch_force_N)
         setup_s = time.perf_counter() - began

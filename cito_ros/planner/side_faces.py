@@ -67,7 +67,6 @@ class SideGeometry:
         quarter = face * math.pi / 2
         inward = np.array([math.cos(quarter) * away[0] - math.sin(quarter) * away[1],
                            math.sin(quarter) * away[0] + math.cos(quarter) * away[1], 0.0])
-        self.inward = inward
         self.normal = math.cos(tilt_rad) * inward + math.sin(tilt_rad) * away
         self.push = np.asarray(target_m, dtype=float) - centre
         distance = float(np.linalg.norm(self.push[:2]))
@@ -131,8 +130,10 @@ def plate_tilt(scene, initial_state: np.ndarray, task, face: int, side: SideFace
     return tilt, max(short_start, short_end)
 
 
-def side_joint_path(problem, script: ScriptedSettings, face: int) -> JointPath:
-    """The side push in joint space over the problem's horizon, the plate at plate_tilt: to side.transit_fraction
+def side_joint_path(problem, script: ScriptedSettings, face: int, tilt_rad: float,
+                    offset_scale: float = 1.0) -> JointPath:
+    """The side push in joint space over the problem's horizon, the plate tilted by tilt_rad (plate_tilt's), its
+    contact offset_scale times SideGeometry's offset along the face: to side.transit_fraction
     (longer, up to max_transit_fraction, where the joints would exceed script.speed_fraction of their limits) a
     transit through the via point (a cubic Hermite spline in the joint angles, not stopping there) to the plate
     standoff_m off the face; then, by damped least squares on the plate's position and normal, each step within
@@ -141,9 +142,8 @@ def side_joint_path(problem, script: ScriptedSettings, face: int) -> JointPath:
     side = script.side_faces
     scene = problem.simulator.scene
     model, site, qadr, dofs = scene.model, scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
-    tilt, _ = plate_tilt(scene, problem.initial_state, problem.task, face, side, script.joint_margin_rad)
     geometry = SideGeometry(scene, problem.initial_state, problem.task.target_position_m, problem.task.target_yaw_rad,
-                            face, side, tilt, side.offset_scale)
+                            face, side, tilt_rad, offset_scale)
     data = _at_start(problem)
     q0 = data.qpos[qadr].copy()
     # both from the start posture: the via point's from the contact's could lie beyond it, and the spline swung the

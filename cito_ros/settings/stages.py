@@ -88,7 +88,6 @@ class SideFaceSettings:
                                      "(1, 3); a goal needing another is refused")
     offset_scales: tuple[float, ...] = setting("one scripted start per entry: the contact's offset along the face "
                                                "(the one that turns the object by the goal's turn) times this")
-    offset_scale: float = setting("the start's entry of offset_scales (set per start)")
     tilts_rad: tuple[float, ...] = setting("the plate normal turned from the side face's inward normal away from the "
                                            "arm (rad): the first at which the plate reaches the contact")
     contact_height_m: float = setting("height of the plate centre above the object's centre (m)")
@@ -105,8 +104,8 @@ class SideFaceSettings:
     max_offset_m: float = setting("the contact offset from the face centre at most (m)", minimum=0.0)
     normal_weight: float = setting("weight of the plate normal against its position in the inverse kinematics (m)",
                                    positive=True)
-    reach_tolerance_m: float = setting("a goal whose side contact the plate falls short of by more than this, at "
-                                       "the push's start or end, is refused (m)", positive=True)
+    reach_tolerance_m: float = setting("where the plate falls short of the side contact by more than this, at the "
+                                       "push's start or end, only the near face's starts run (m)", positive=True)
 
     def check(self, path: str) -> None:
         transit_ok = 0.0 < self.transit_fraction <= self.max_transit_fraction < 1.0
