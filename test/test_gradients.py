@@ -347,3 +347,25 @@ def test_a_physical_stage_expansion_stays_finite_with_the_plate_inside_the_objec
     expansion = problem.knot_expansion(z)
     for name in ("fx", "fc", "lx", "lc", "lxx", "lcc", "lcx", "vx", "vxx"):
         assert np.isfinite(getattr(expansion, name)).all(), name
+
+
+def test_a_linearization_of_every_other_step_keeps_the_gradients_direction_and_the_contact_switches(settings):
+    """gradient.stride 2 (the executor's replans): the even steps and the steps where the plate's contact begins
+    or ends are linearized as in full, each other step takes the Jacobians of the one before, and the strike's
+    gradient still points the way of the exact one."""
+    posed, strided_posed = make_problem(settings, "vscm"), make_problem(settings, "vscm", **{"gradient.stride": 2})
+    exact_problem = physical_twin(posed, posed.cost)
+    strided_problem = physical_twin(strided_posed, strided_posed.cost)
+    z = strike(exact_problem)
+    exact, strided = exact_problem.linearize(z), strided_problem.linearize(z)
+    found = exact_problem.evaluate(z).sensordata[:, exact_problem.scene.sensors.contact_found.start] > 0
+    switches = np.flatnonzero(found[1:] != found[:-1]) + 1
+    assert switches.size and np.any(switches % 2 == 1)  # an odd step that a plain stride would have copied
+    computed = np.union1d(np.arange(0, len(found), 2), np.union1d(switches - 1, switches))
+    copied = np.setdiff1d(np.arange(len(found)), computed)
+    assert copied.size > len(found) // 3
+    np.testing.assert_array_equal(strided.A[computed], exact.A[computed])
+    np.testing.assert_array_equal(strided.B[copied], strided.B[copied - 1])
+    assert not np.array_equal(exact.A[copied], strided.A[copied])
+    g_exact, g_strided = exact_problem.gradient(z), strided_problem.gradient(z)
+    assert np.dot(g_exact, g_strided) > 0.98 * np.linalg.norm(g_exact) * np.linalg.norm(g_strided)

@@ -112,14 +112,14 @@ class PushModel:
         simulator = self.simulator(knots)
         settings, weights = self.settings, getattr(self.settings.weights, self.scene.contact_model.name)
         stage = list(settings.stages.physical)[REPLAN_STAGE]
+        gradient = dataclasses.replace(settings.gradient, stride=settings.executor.replan_stride)
         bare = PushProblem(simulator, state, task, stage_cost(settings, weights, False, 0.0, None, 0.0, 0.0),
-                           settings.gradient, settings.task.position_error_scale_min_m)
+                           gradient, settings.task.position_error_scale_min_m)
         z = bare.with_torques(torques)
         touch = touch_profile(bare, z, settings.stages.touch_force_N)
         cost = stage_cost(settings, weights, False, stage.contact_weight, touch, stage.joint_speed_weight,
                           stage.joint_position_weight)
-        problem = PushProblem(simulator, state, task, cost, settings.gradient,
-                              settings.task.position_error_scale_min_m)
+        problem = PushProblem(simulator, state, task, cost, gradient, settings.task.position_error_scale_min_m)
         rollout = bare.evaluate(z)  # the same rollout under this cost: simulated once
         problem.remember(z, rollout.states, rollout.sensordata, rollout.warnings)
         return problem

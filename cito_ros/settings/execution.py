@@ -66,6 +66,8 @@ class ExecutorSettings:
     replan_mu: float = setting("the regularization a replan's iLQR starts from", positive=True)
     replan_regularizations: int = setting("a replan raises iLQR's mu at most this often before it gives up on a "
                                           "step (a forward pass each)", minimum=0)
+    replan_stride: int = setting("a replan linearizes every this many simulation steps, the steps between taking "
+                                 "the Jacobians of the one before (gradient.stride)", minimum=1)
     min_replan_knots: int = setting("no replan with fewer knots of the push left", minimum=1)
     feedback_regularization: float = setting("mu of the backward pass a plan's feedback gains come from, where "
                                              "no iLQR step gave them", positive=True)

@@ -20,6 +20,8 @@ class DerivativeSettings:
     epsilon: float = setting("finite-difference step of the per-step linearization", positive=True)
     restart_step: float = setting("knot-restart difference step, relative to the variable scale", positive=True)
     threads: int = setting("linearization threads, one mjData each", minimum=1)
+    stride: int = setting("every stride-th step linearized, the steps between taking the Jacobians of the one "
+                          "before (1: every step)", minimum=1)
 
 
 @dataclass(frozen=True)

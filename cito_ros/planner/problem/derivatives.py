@@ -137,12 +137,26 @@ class ProblemDerivatives:
         if not self.cost.virtual_force:
             touching = np.flatnonzero(evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0)
             untouched = int(touching[0]) if touching.size else self.n_steps
+        steps = self._linearized_steps(evaluation)
         with self.simulator.clock.measure("linearization"):
             evaluation.linearization = rollout_derivatives.linearize(
-                self.scene.model, self._linearization_data, states_before,
-                self.simulator.step_controls(evaluation.knot_controls), self.derivative_settings.epsilon,
-                self.scene.object_dofs, untouched)
+                self.scene.model, self._linearization_data, states_before[steps],
+                self.simulator.step_controls(evaluation.knot_controls)[steps], self.derivative_settings.epsilon,
+                self.scene.object_dofs, int(np.searchsorted(steps, untouched)))
+        if len(steps) < len(states_before):
+            evaluation.linearization = evaluation.linearization.spread(steps, len(states_before))
         return evaluation.linearization
+
+    def _linearized_steps(self, evaluation: Evaluation) -> np.ndarray:
+        """The steps linearized: every gradient.stride-th, and every step where the plate's contact with the
+        object begins or ends (an impact's Jacobians are like no step's around it: copied from the step before,
+        they turned a strike's gradient around)."""
+        stride, T = self.derivative_settings.stride, self.n_steps
+        if stride == 1:
+            return np.arange(T)
+        found = evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0
+        switch = np.flatnonzero(found[1:] != found[:-1])
+        return np.unique(np.concatenate([np.arange(0, T, stride), switch, switch + 1]))
 
     def _adjoint(self, evaluation: Evaluation):
         """d(dynamic cost terms)/dz and d(knot mean phi)/dz through the dynamics, by the adjoint pass."""

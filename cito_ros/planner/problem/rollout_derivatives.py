@@ -38,6 +38,15 @@ class Linearization:
     def unresolved_steps(self) -> np.ndarray:
         return np.nonzero(self.flags[:, 1])[0]
 
+    def spread(self, steps: np.ndarray, count: int) -> Linearization:
+        """This linearization of the steps `steps` (increasing, from 0) of a rollout of `count` steps spread over
+        them all: each step between takes the Jacobians of the linearized one before it, and no flags (they
+        count what was computed)."""
+        source = np.searchsorted(steps, np.arange(count), side="right") - 1
+        flags = np.zeros((count, 3), dtype=self.flags.dtype)
+        flags[steps] = self.flags
+        return Linearization(self.A[source], self.B[source], self.C[source], self.D[source], flags)
+
     def info(self) -> dict[str, int]:
         return {"one_sided_columns": int(self.flags[:, 0].sum()), "unresolved_columns": int(self.flags[:, 1].sum()),
                 "linearization_warnings": int(self.flags[:, 2].sum())}
