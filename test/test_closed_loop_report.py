@@ -9,13 +9,17 @@ from cito_ros.studies import closed_loop
 from cito_ros.studies.targets import Goal
 
 
-def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_and_the_pushes_cut_short():
-    def record(mode: str, tipped: bool) -> dict:
+def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_the_pushes_cut_short_and_the_arms_too_fast():
+    def record(mode: str, tipped: bool, speed: float = 0.9) -> dict:
         return {"world": "w", "mode": mode, "steady_reach_margin_m": 0.05, "success": False, "success_tight": False,
-                "position_error_m": 0.05, "max_joint_speed_ratio": 0.9, "pushes": 1, "replans": 0,
+                "position_error_m": 0.05, "max_joint_speed_ratio": speed, "pushes": 1, "replans": 0,
                 "replan_rate_hz": math.nan, "replan_compute_s": math.nan, "tipped": tipped, "pushes_cut": 2 * tipped}
 
-    summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False), record("open_loop", False)])
+    summary = closed_loop.report([record("closed_loop", True), record("closed_loop", False, 1.02),
+                                  record("closed_loop", False, 1.0), record("open_loop", False)])
+    assert summary["zones"]["steady"]["w"]["closed_loop"]["over_speed_limit"] == 1
+    assert "Episodes with a joint past its speed limit (the world's arm, above 1.0 of it at some step): 1 in w, " \
+        "closed loop, inside the steady reach." in closed_loop.markdown(summary)
     assert "the first push planned sturdy" not in closed_loop.markdown(summary)  # records without the executor's cause
     assert summary["zones"]["steady"]["w"]["closed_loop"]["tipped"] == 1
     assert "Cubes tipped over (the true cube past its edge, never a success): 1 in w, closed loop, inside the " \

@@ -134,6 +134,7 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
                 out.setdefault(name, {}).setdefault(world, {})[mode] = {
                     "episodes": len(rows), "success": sum(r["success"] for r in rows),
                     "tipped": sum(r.get("tipped", False) for r in rows),
+                    "over_speed_limit": sum(r["max_joint_speed_ratio"] > 1.0 for r in rows),
                     "success_tight": sum(r["success_tight"] for r in rows),
                     "position_error_m": _stats([r["position_error_m"] for r in rows]),
                     "max_joint_speed_ratio": _stats([r["max_joint_speed_ratio"] for r in rows]),
@@ -269,10 +270,15 @@ def markdown(summary: dict[str, Any]) -> str:
                     f"{speed['median']:.2f} / {speed['p90']:.2f} |")
         lines.append("")
     zone_names = {"steady": "inside the steady reach", "strike": "beyond it"}
-    tipped = [(zone_names[zone], world, mode, e["tipped"]) for zone, zone_worlds in summary["zones"].items()
-              for world, modes in zone_worlds.items() for mode, e in modes.items() if e["tipped"]]
-    where = "; ".join(f"{n} in {world}, {mode.replace('_', ' ')}, {zone}" for zone, world, mode, n in tipped)
-    lines.append(f"Cubes tipped over (the true cube past its edge, never a success): {where or 'none'}.")
+
+    def where(count: str) -> str:  # "n in world, mode, zone; ..." of the groups that count some
+        return "; ".join(f"{e[count]} in {world}, {mode.replace('_', ' ')}, {zone_names[zone]}"
+                         for zone, zone_worlds in summary["zones"].items() for world, modes in zone_worlds.items()
+                         for mode, e in modes.items() if e.get(count)) or "none"
+
+    lines.append(f"Cubes tipped over (the true cube past its edge, never a success): {where('tipped')}.")
+    lines.append("Episodes with a joint past its speed limit (the world's arm, above 1.0 of it at some step): "
+                 f"{where('over_speed_limit')}.")
     if summary["pushes_cut"] is not None:
         cut = summary["pushes_cut"]
         lines.append(f"Pushes cut short with the cube off their path (executor.off_path_m): {cut['pushes']}, in "
