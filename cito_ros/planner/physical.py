@@ -76,7 +76,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     jobs += [({"horizon_s": horizon_s}, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
              for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
     width = 2 if stages.parallel and len(jobs) > 1 else 1
-    scripts = sum(1 for _, fraction, _ in jobs if not isinstance(fraction, float))  # before the discoveries
+    scripts = sum(1 for _, start, _ in jobs if not _discovery(start))  # before the discoveries
     abandoned = [threading.Event() for _ in jobs]
     results: dict[int, tuple] = {}
 
@@ -152,6 +152,11 @@ class SideStart:
     offset_scale: float = 1.0  # an entry of side_faces.offset_scales
 
 
+def _discovery(start: float | SideStart | None) -> bool:
+    """Whether a job's start is a discovery's fraction (None: the near face's script; a SideStart: a side face's)."""
+    return start is not None and not isinstance(start, SideStart)
+
+
 def _side_start(settings: Settings, request: PushRequest) -> SideStart | None:
     """The side face the request's goal needs (side_faces.face_needed), where it is one of side_faces.faces and the
     plate reaches its contact, with the tilt that reaches it; else None: the near face's starts alone."""
@@ -190,7 +195,7 @@ def solve_start(clock: SolveClock, stop: StartStop, settings: Settings, override
     posed = build_problem(settings, request)
     base, limits = posed.problem, settings.limits
     T = base.n_steps
-    discovered = isinstance(fraction, float)
+    discovered = _discovery(fraction)
     reach = np.where(np.arange(T) >= int((fraction if discovered else 0.0) * T), 1.0 / T, 0.0)
     eliminated = base.contact_model.slack_variable is not None and settings.stages.discovery.cccm == "slack_eliminated"
     discovery = PushProblem(base.simulator, base.initial_state, base.task,

@@ -97,16 +97,16 @@ def draw_goals(n: int, seed: int, settings: Settings | None = None, distribution
             push = float(rng.uniform(*PUSH_RANGE_M))
             direction = float(rng.uniform(-DIRECTION_RANGE_RAD, DIRECTION_RANGE_RAD))
             yaw = float(rng.uniform(-YAW_RANGE_RAD, YAW_RANGE_RAD))
-            target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
         elif distribution == "beside":
             push = float(rng.uniform(*BESIDE_PUSH_RANGE_M))
             direction = float(rng.choice((-1.0, 1.0)) * rng.uniform(*BESIDE_DIRECTION_RANGE_RAD))
             yaw = float(rng.uniform(-BESIDE_YAW_RANGE_RAD, BESIDE_YAW_RANGE_RAD))
-            target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
         else:  # the whole table top the cube fits on; make_task refuses what is beyond the arm's push reach
             target = tuple(float(v) for v in rng.uniform(where["table_low_m"], where["table_high_m"]))
             yaw = float(rng.uniform(-math.pi, math.pi))
             push, direction = math.hypot(target[0] - x0, target[1] - y0), math.atan2(target[1] - y0, target[0] - x0)
+        if distribution != "any":  # a push from the cube's start
+            target = (x0 + push * math.cos(direction), y0 + push * math.sin(direction))
         try:
             make_task(scene, scene.initial_state(start_configuration(beta)), np.array(target), yaw, settings)
         except ValueError as error:
