@@ -71,6 +71,7 @@ class PushModel:
         self.control_period_s = settings.control_period_s
         self.servo_gains = servo_gains(settings)
         self.servo_tracking = servo_tracking(settings)
+        self._gradient = dataclasses.replace(settings.gradient, stride=settings.executor.replan_stride)  # replans'
         self._simulators: dict[int, Simulator] = {}
         self._tasks: dict[tuple, PushTask] = {}
         self._data = mujoco.MjData(self.scene.model)
@@ -112,14 +113,13 @@ class PushModel:
         simulator = self.simulator(knots)
         settings, weights = self.settings, getattr(self.settings.weights, self.scene.contact_model.name)
         stage = list(settings.stages.physical)[REPLAN_STAGE]
-        gradient = dataclasses.replace(settings.gradient, stride=settings.executor.replan_stride)
         bare = PushProblem(simulator, state, task, stage_cost(settings, weights, False, 0.0, None, 0.0, 0.0),
-                           gradient, settings.task.position_error_scale_min_m)
+                           self._gradient, settings.task.position_error_scale_min_m)
         z = bare.with_torques(torques)
         touch = touch_profile(bare, z, settings.stages.touch_force_N)
         cost = stage_cost(settings, weights, False, stage.contact_weight, touch, stage.joint_speed_weight,
                           stage.joint_position_weight)
-        problem = PushProblem(simulator, state, task, cost, gradient, settings.task.position_error_scale_min_m)
+        problem = PushProblem(simulator, state, task, cost, self._gradient, settings.task.position_error_scale_min_m)
         rollout = bare.evaluate(z)  # the same rollout under this cost: simulated once
         problem.remember(z, rollout.states, rollout.sensordata, rollout.warnings)
         return problem

@@ -132,29 +132,31 @@ class ProblemDerivatives:
         evaluation = self.evaluate(z)
         if evaluation.linearization is not None:
             return evaluation.linearization
-        states_before = self.states_before(evaluation)
+        states = self.states_before(evaluation)
+        controls = self.simulator.step_controls(evaluation.knot_controls)
+        found = evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0
         untouched = 0
         if not self.cost.virtual_force:
-            touching = np.flatnonzero(evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0)
+            touching = np.flatnonzero(found)
             untouched = int(touching[0]) if touching.size else self.n_steps
-        steps = self._linearized_steps(evaluation)
+        steps = self._linearized_steps(found)
+        if steps is not None:  # only those steps: the rest take the one before's (spread below)
+            states, controls, untouched = states[steps], controls[steps], int(np.searchsorted(steps, untouched))
         with self.simulator.clock.measure("linearization"):
             evaluation.linearization = rollout_derivatives.linearize(
-                self.scene.model, self._linearization_data, states_before[steps],
-                self.simulator.step_controls(evaluation.knot_controls)[steps], self.derivative_settings.epsilon,
-                self.scene.object_dofs, int(np.searchsorted(steps, untouched)))
-        if len(steps) < len(states_before):
-            evaluation.linearization = evaluation.linearization.spread(steps, len(states_before))
+                self.scene.model, self._linearization_data, states, controls, self.derivative_settings.epsilon,
+                self.scene.object_dofs, untouched)
+        if steps is not None:
+            evaluation.linearization = evaluation.linearization.spread(steps, self.n_steps)
         return evaluation.linearization
 
-    def _linearized_steps(self, evaluation: Evaluation) -> np.ndarray:
-        """The steps linearized: every gradient.stride-th, and every step where the plate's contact with the
-        object begins or ends (an impact's Jacobians are like no step's around it: copied from the step before,
-        they turned a strike's gradient around)."""
+    def _linearized_steps(self, found: np.ndarray) -> np.ndarray | None:
+        """The steps linearized (None: every one): every gradient.stride-th, and every step where the plate's contact
+        with the object (`found`, per step) begins or ends (an impact's Jacobians are like no step's around it:
+        copied from the step before, they turned a strike's gradient around)."""
         stride, T = self.derivative_settings.stride, self.n_steps
         if stride == 1:
-            return np.arange(T)
-        found = evaluation.sensordata[:, self.scene.sensors.contact_found.start] > 0
+            return None
         switch = np.flatnonzero(found[1:] != found[:-1])
         return np.unique(np.concatenate([np.arange(0, T, stride), switch, switch + 1]))
 
