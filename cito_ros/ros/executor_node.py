@@ -81,14 +81,16 @@ class ExecutorNode(Node):
         group = ReentrantCallbackGroup()
         self.predicted = self.create_publisher(PathMsg, "/cito/predicted_object_path", qos)
         # a control step on every joint state, in a loop node: beside the action server, steps came up to 60 ms
-        # apart on two cores
+        # apart on two cores. The measurements and the watchdog are its too: the action server's executor, woken
+        # by nothing else, leaves the CPU to the planner's process
         self._control = LoopNode("cito_executor_control")
-        self.commands = self._control.node.create_publisher(Float64MultiArray, "/effort_controller/commands", qos)
+        control = self._control.node
+        self.commands = control.create_publisher(Float64MultiArray, "/effort_controller/commands", qos)
         # the latest joint state only: a backlog of old ones is no use to a control step
-        self._control.node.create_subscription(JointState, "/joint_states", self._on_joints,
-                                               QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
-        self.create_subscription(PoseStamped, "/object/pose", self._on_pose, qos, callback_group=group)
-        self.create_timer(0.02, self._watchdog, callback_group=group)  # when the joint states stop
+        control.create_subscription(JointState, "/joint_states", self._on_joints,
+                                    QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        control.create_subscription(PoseStamped, "/object/pose", self._on_pose, qos)
+        control.create_timer(0.02, self._watchdog)  # when the joint states stop
         self.action = ActionServer(self, ExecutePush, NAME, execute_callback=self._on_execute,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
                                    callback_group=group)

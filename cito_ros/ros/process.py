@@ -13,7 +13,8 @@ import threading
 from typing import Callable
 
 import rclpy
-from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -61,21 +62,29 @@ def run(make_node: Callable[[], Node], program: str, argv: list[str] | None = No
 
 
 class LoopNode:
-    """A node of its own for a control loop's subscription, spun by a single-threaded executor in a thread of its
-    own: its callback then waits behind no other entity. rclpy's executors rebuild the wait set of all of a
-    node's entities (an action server's, the parameter services') for every callback; for a subscription at
-    200 Hz that took most of a core. Start it once everything its callbacks use exists."""
+    """A node of its own for a control loop's subscriptions, spun in a thread of its own by rclpy's EventsExecutor:
+    its callbacks then wait behind no other entity. rclpy's Python executors rebuild the wait set of all of a
+    node's entities for every callback: for a subscription at 200 Hz that took most of a core beside an action
+    server, and 15 % of one alone, against 7 % with the EventsExecutor (docs/results.md: Through the nodes). Its
+    spin() in a thread took a core and delivered nothing (rclpy 7.1.5): it is spun by spin_once. Start it once
+    everything its callbacks use exists."""
 
     def __init__(self, name: str):
         self.node = Node(name, start_parameter_services=False)
-        self._executor = SingleThreadedExecutor()
+        self._executor = EventsExecutor()
         self._executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._executor.spin, name=name, daemon=True)
+        self._stopping = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name=name, daemon=True)
+
+    def _spin(self) -> None:
+        while not self._stopping.is_set() and rclpy.ok():
+            self._executor.spin_once(timeout_sec=0.1)
 
     def start(self) -> None:
         self._thread.start()
 
     def destroy(self) -> None:
-        self._executor.shutdown()
+        self._stopping.set()
         self._thread.join(2.0)
+        self._executor.shutdown()
         self.node.destroy_node()

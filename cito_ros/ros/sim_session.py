@@ -21,7 +21,7 @@ from cito_msgs.action import ExecutePush
 from geometry_msgs.msg import PoseStamped
 from rclpy.action import ActionClient
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
@@ -85,7 +85,9 @@ class Operator:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = rclpy.create_node("cito_operator", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        # the robot's joint states come at 200 Hz: rclpy's Python executors rebuild their wait set for each, the
+        # EventsExecutor does not (cito_ros.ros.process.LoopNode), and this client's CPU is the planner's
+        self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.action = ActionClient(self.node, ExecutePush, "/cito/execute_push")
         self.joints: list[JointState] = []
