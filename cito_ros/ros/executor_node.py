@@ -78,7 +78,6 @@ class ExecutorNode(Node):
         self.bag_directory = Path(self.settings.node.bag_directory).expanduser().resolve()
         self.bag_directory.mkdir(parents=True, exist_ok=True)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        group = ReentrantCallbackGroup()
         self.predicted = self.create_publisher(PathMsg, "/cito/predicted_object_path", qos)
         # a control step on every joint state, in a loop node: beside the action server, steps came up to 60 ms
         # apart on two cores. The measurements and the watchdog are its too: the action server's executor, woken
@@ -93,7 +92,7 @@ class ExecutorNode(Node):
         control.create_timer(0.02, self._watchdog)  # when the joint states stop
         self.action = ActionServer(self, ExecutePush, NAME, execute_callback=self._on_execute,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                                   callback_group=group)
+                                   callback_group=ReentrantCallbackGroup())
         self.recorder = Recorder(on_error=lambda message: self.get_logger().error(message))
         # the plans and replans run in a process of their own (spawned: no DDS state is forked), so that their
         # Python never holds up the control steps, which run on every joint state
