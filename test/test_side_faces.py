@@ -34,17 +34,21 @@ def test_the_side_transit_stays_clear_of_the_cube_until_the_plate_comes_onto_its
     side = settings.stages.scripted.side_faces
     settings = settings.with_overrides({"horizon_s": settings.round_horizon_s(side.horizon_scale),
                                         "control_period_s": side.control_period_s})
-    for target, yaw in (((0.99, 0.12), 0.0), ((1.03, 0.15), -0.2), ((0.98, 0.05), 0.1)):  # on side face 1
+    for target, yaw, face in (((0.99, 0.12), 0.0, 1), ((1.03, 0.15), -0.2, 1), ((0.98, 0.05), 0.1, 1),
+                              ((0.99, -0.12), 0.0, 3), ((1.03, -0.15), 0.2, 3)):
         planning = posed(settings, target, yaw)
         problem = physical_twin(planning.problem, planning.problem.cost)
-        tilt, _ = side_faces.plate_tilt(problem.scene, problem.initial_state, problem.task, 1, side,
+        tilt, _ = side_faces.plate_tilt(problem.scene, problem.initial_state, problem.task, face, side,
                                         settings.stages.scripted.joint_margin_rad)
-        path = side_faces.side_joint_path(problem, settings.stages.scripted, 1, tilt)
+        path = side_faces.side_joint_path(problem, settings.stages.scripted, face, tilt)
         scene = problem.scene
         transit = int(side.transit_fraction * problem.simulator.n_steps)
         clearances = [scene.arm_clearance(scene.data_at(q), 0.1)[0] for q in path.q[:transit + 1:10]]
         assert min(clearances) > 0.01, target  # the plate ends standoff_m off the face, the arm clear all the way
         assert np.max(np.abs(path.qdot) / scene.velocity_limit) < 1.0
+        # and off the table: along face 3's path the forearm lay on it (docs/planner.md: Side faces)
+        lowest = min(height for q in path.q[::10] for _, _, height in side_faces._low_points(scene, scene.data_at(q)))
+        assert lowest > 0.0, (target, lowest)
 
 
 def test_a_pull_is_refused_with_the_reason(settings):
@@ -63,13 +67,16 @@ def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_th
     assert short_m > settings.stages.scripted.side_faces.reach_tolerance_m
     assert tilt == settings.stages.scripted.side_faces.tilts_rad[-1]
     assert _side_start(settings, out) is None
-    # the other side face is not planned (faces: [1]): its goals go to the near face as before
-    assert _side_start(settings, PushRequest("vscm", 5.0, None, (0.99, -0.12), 0.0)) is None
+    # the other side face, where `faces` has it
+    other = PushRequest("vscm", 5.0, None, (0.99, -0.12), 0.0)
+    assert _side_start(settings, other).face == 3
+    assert _side_start(settings.with_overrides({"stages.scripted.side_faces.faces": [1]}), other) is None
 
 
-def test_a_side_push_brings_the_cube_beside_it_to_the_goal_executed_without_the_virtual_force(settings):
-    # straight beside the cube, where every near-face push ran to the time limit and missed (docs/results.md)
-    result = plan_push("vscm", 5.0, settings=settings, target_position_m=np.array([0.99, 0.15]))
+@pytest.mark.parametrize("target, yaw", [((0.99, 0.15), 0.0), ((1.03, -0.15), 0.2)])
+def test_a_side_push_brings_the_cube_beside_it_to_the_goal_executed_without_the_virtual_force(settings, target, yaw):
+    # beside the cube either way, where every near-face push ran to the time limit and missed (docs/results.md)
+    result = plan_push("vscm", 5.0, settings=settings, target_position_m=np.array(target), target_yaw_rad=yaw)
     assert result.metrics.success, result.metrics
     assert result.metrics.position_error_m < settings.task.success_position_error_m
     assert result.stages[0].name.startswith("side face")

@@ -28,6 +28,7 @@ from cito_ros.settings import ScriptedSettings, SideFaceSettings
 
 NEAR, FAR = 0, 2           # face_towards' quarter turns from the near face (1 and 3: the side faces)
 POSTURE_WEIGHT_M = 0.05    # the inverse kinematics' first pull towards its start posture (m/rad)
+TABLE_WEIGHT = 10.0        # the arm's clearance above the table against the plate's place, in the push's steps
 
 
 def face_towards(near_normal_rad: float, direction_rad: float) -> int:
@@ -86,10 +87,41 @@ class SideGeometry:
         self.via = centre - (half + side.via_front_m) * away - (half + side.via_aside_m) * inward + lift
 
 
+def _low_points(scene, data: mujoco.MjData) -> list[tuple[int, np.ndarray, float]]:
+    """The lowest point (world) of each of the arm's capsules, with its body and its height above the table top
+    (inf where it is not over the table), in a kinematics-computed mjData: what of the arm comes nearest the table
+    as the plate reaches low and tilted beside the object."""
+    model, points = scene.model, []
+    low, high, table_z = scene.table_top()
+    for geom in np.flatnonzero(model.geom_type == mujoco.mjtGeom.mjGEOM_CAPSULE):
+        body = model.geom_bodyid[geom]
+        if body in (0, scene.object_body_id):
+            continue
+        axis = data.geom_xmat[geom].reshape(3, 3)[:, 2] * model.geom_size[geom][1]
+        point = data.geom_xpos[geom] - axis * np.sign(axis[2]) - np.array([0.0, 0.0, model.geom_size[geom][0]])
+        over = bool(np.all(point[:2] >= low) and np.all(point[:2] <= high))
+        points.append((body, point, point[2] - table_z if over else math.inf))
+    return points
+
+
+def _table_rows(scene, data: mujoco.MjData, clearance_m: float, dofs) -> tuple[np.ndarray, np.ndarray]:
+    """For each arm capsule lower than clearance_m above the table top: how far below it is (m) and the Jacobian
+    row of its lowest point's height over the arm's joints (none: (0,) and (0, n))."""
+    errors, rows = [], []
+    jacp = np.zeros((3, scene.model.nv))
+    for body, point, height in _low_points(scene, data):
+        if height < clearance_m:
+            mujoco.mj_jac(scene.model, data, jacp, None, point, body)
+            errors.append(clearance_m - height)
+            rows.append(jacp[2, dofs].copy())
+    return np.array(errors), np.array(rows).reshape(len(rows), len(dofs))
+
+
 def _plate_pose_q(scene, data: mujoco.MjData, position: np.ndarray, normal: np.ndarray, start_q: np.ndarray,
-                  margin_rad: float, normal_weight: float) -> tuple[np.ndarray, float]:
+                  margin_rad: float, normal_weight: float, clearance_m: float) -> tuple[np.ndarray, float]:
     """Joint angles that put the plate centre at `position` with its normal along `normal`, from start_q, every
-    joint margin_rad inside its range (mujoco.minimize.least_squares), and the plate's distance from `position`."""
+    joint margin_rad inside its range and the arm's capsules clearance_m above the table top
+    (mujoco.minimize.least_squares), and the plate's distance from `position`."""
     low, high = scene.joint_range[:, 0] + margin_rad, scene.joint_range[:, 1] - margin_rad
     site, qadr = scene.robot_site_id, scene.arm_qpos_adr
 
@@ -98,9 +130,10 @@ def _plate_pose_q(scene, data: mujoco.MjData, position: np.ndarray, normal: np.n
         for q in x.T:
             data.qpos[qadr] = q
             mujoco.mj_kinematics(scene.model, data)
+            heights = np.array([height for _, _, height in _low_points(scene, data)])
             columns.append(np.r_[data.site_xpos[site] - position,
                                  normal_weight * (data.site_xmat[site].reshape(3, 3)[:, 2] - normal),
-                                 posture * (q - start_q)])
+                                 np.minimum(heights - clearance_m, 0.0), posture * (q - start_q)])
         return np.array(columns).T
 
     # first near start_q, then exactly there: unpulled, the least squares lands on far-away wrist postures the
@@ -122,9 +155,9 @@ def plate_tilt(scene, initial_state: np.ndarray, task, face: int, side: SideFace
     for tilt in side.tilts_rad:
         geometry = SideGeometry(scene, initial_state, task.target_position_m, task.target_yaw_rad, face, side, tilt)
         q, short_start = _plate_pose_q(scene, data, geometry.contact, geometry.normal, q0, margin_rad,
-                                       side.normal_weight)
+                                       side.normal_weight, side.table_clearance_m)
         _, short_end = _plate_pose_q(scene, data, geometry.contact + geometry.push, geometry.normal, q, margin_rad,
-                                     side.normal_weight)
+                                     side.normal_weight, side.table_clearance_m)
         if max(short_start, short_end) <= side.reach_tolerance_m:
             break
     return tilt, max(short_start, short_end)
@@ -146,12 +179,8 @@ def side_joint_path(problem, script: ScriptedSettings, face: int, tilt_rad: floa
                             face, side, tilt_rad, offset_scale)
     data = _at_start(problem)
     q0 = data.qpos[qadr].copy()
-    # both from the start posture: the via point's from the contact's could lie beyond it, and the spline swung the
-    # plate through the object; the contact's from the via point's could stop short of the contact
     q_via, _ = _plate_pose_q(scene, data, geometry.via, geometry.normal, q0, script.joint_margin_rad,
-                             side.normal_weight)
-    q_off, _ = _plate_pose_q(scene, data, geometry.off_face, geometry.normal, q0, script.joint_margin_rad,
-                             side.normal_weight)
+                             side.normal_weight, side.table_clearance_m)
     dt, T = model.opt.timestep, problem.simulator.n_steps
 
     def hermite(q_a, q_b, v_a, v_b, steps):
@@ -160,13 +189,12 @@ def side_joint_path(problem, script: ScriptedSettings, face: int, tilt_rad: floa
         return ((2 * s ** 3 - 3 * s ** 2 + 1) * q_a + (s ** 3 - 2 * s ** 2 + s) * duration * v_a
                 + (-2 * s ** 3 + 3 * s ** 2) * q_b + (s ** 3 - s ** 2) * duration * v_b)
 
-    def spline(steps):
-        through = (q_off - q0) / (steps * dt)  # the velocity at the via point
-        return np.vstack([hermite(q0, q_via, np.zeros_like(q0), through, steps // 2),
-                          hermite(q_via, q_off, through, np.zeros_like(q0), steps - steps // 2)[1:]])
+    def spline(steps):  # to the via point, at rest there
+        return hermite(q0, q_via, np.zeros_like(q0), np.zeros_like(q0), steps // 2)
 
     # transit_fraction of the horizon, or longer (up to max_transit_fraction) where the joints would move faster
-    # than script.speed_fraction of their limits
+    # than script.speed_fraction of their limits: in joint space to the via point, then the plate straight along
+    # the side face to standoff_m off it (in joint space the arm went through the object's corner)
     n_transit = max(2, int(side.transit_fraction * T))
     transit = spline(n_transit)
     speed = np.max(np.abs(np.diff(transit, axis=0)) / (scene.velocity_limit * dt))
@@ -176,24 +204,30 @@ def side_joint_path(problem, script: ScriptedSettings, face: int, tilt_rad: floa
     low = scene.joint_range[:, 0] + script.joint_margin_rad
     high = scene.joint_range[:, 1] - script.joint_margin_rad
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-    weight, damping = script.orientation_weight, script.damping * np.eye(6)
+    weight = script.orientation_weight
     step_max = script.speed_fraction * scene.velocity_limit * dt  # per step, as the near face's script
     q = [transit[-1]]
     data.qpos[qadr] = transit[-1]
-    pushing = T - n_transit
-    for k in range(1, pushing + 1):
-        s = k / pushing
+    approach, pushing = n_transit - (len(transit) - 1), T - n_transit
+    for k in range(1, approach + pushing + 1):
+        s = max(k - approach, 0) / pushing
         onto = _minimum_jerk(s / side.contact_fraction)
         along = _minimum_jerk((s - side.contact_fraction) / (side.push_end_fraction - side.contact_fraction))
-        target = geometry.off_face + (geometry.contact - geometry.off_face) * onto + geometry.push * along
+        aside = _minimum_jerk(k / approach)
+        target = geometry.via + (geometry.off_face - geometry.via) * aside + \
+            (geometry.contact - geometry.off_face) * onto + geometry.push * along
         for _ in range(script.ik_iterations):
             mujoco.mj_kinematics(model, data)
             mujoco.mj_comPos(model, data)
             mujoco.mj_jacSite(model, data, jacp, jacr, site)
+            table_errors, table_rows = _table_rows(scene, data, side.table_clearance_m, dofs)
+            # the last joint turns the plate about its normal, which nothing asks of it: held, or it wanders
             error = np.concatenate((target - data.site_xpos[site],
-                                    weight * _cross(data.site_xmat[site][2::3], geometry.normal)))
-            J = np.vstack([jacp[:, dofs], weight * jacr[:, dofs]])
-            step = np.clip(J.T @ np.linalg.solve(J @ J.T + damping, error), -step_max, step_max)
+                                    weight * _cross(data.site_xmat[site][2::3], geometry.normal),
+                                    TABLE_WEIGHT * table_errors, [0.0]))
+            J = np.vstack([jacp[:, dofs], weight * jacr[:, dofs], TABLE_WEIGHT * table_rows, np.eye(len(dofs))[-1]])
+            step = np.clip(J.T @ np.linalg.solve(J @ J.T + script.damping * np.eye(len(error)), error), -step_max,
+                           step_max)
             data.qpos[qadr] = np.clip(q[-1] + np.clip(data.qpos[qadr] + step - q[-1], -step_max, step_max), low, high)
         q.append(data.qpos[qadr].copy())
     path = np.vstack([transit, np.array(q[1:])])

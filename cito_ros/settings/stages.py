@@ -104,6 +104,8 @@ class SideFaceSettings:
     max_offset_m: float = setting("the contact offset from the face centre at most (m)", minimum=0.0)
     normal_weight: float = setting("weight of the plate normal against its position in the inverse kinematics (m)",
                                    positive=True)
+    table_clearance_m: float = setting("the arm's links kept this far above the table top by the path's inverse "
+                                       "kinematics (m)", minimum=0.0)
     reach_tolerance_m: float = setting("where the plate falls short of the side contact by more than this, at the "
                                        "push's start or end, only the near face's starts run (m)", positive=True)
 
