@@ -87,21 +87,19 @@ class SideGeometry:
         self.via = centre - (half + side.via_front_m) * away - (half + side.via_aside_m) * inward + lift
 
 
-def _low_points(scene, data: mujoco.MjData) -> list[tuple[int, np.ndarray, float]]:
+def _low_points(scene, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The lowest point (world) of each of the arm's capsules, with its body and its height above the table top
     (inf where it is not over the table), in a kinematics-computed mjData: what of the arm comes nearest the table
-    as the plate reaches low and tilted beside the object."""
-    model, points = scene.model, []
+    as the plate reaches low and tilted beside the object. Arrays over the capsules: bodies, (n, 3), (n,)."""
+    model = scene.model
     low, high, table_z = scene.table_top()
-    for geom in np.flatnonzero(model.geom_type == mujoco.mjtGeom.mjGEOM_CAPSULE):
-        body = model.geom_bodyid[geom]
-        if body in (0, scene.object_body_id):
-            continue
-        axis = data.geom_xmat[geom].reshape(3, 3)[:, 2] * model.geom_size[geom][1]
-        point = data.geom_xpos[geom] - axis * np.sign(axis[2]) - np.array([0.0, 0.0, model.geom_size[geom][0]])
-        over = bool(np.all(point[:2] >= low) and np.all(point[:2] <= high))
-        points.append((body, point, point[2] - table_z if over else math.inf))
-    return points
+    geoms = np.flatnonzero((model.geom_type == mujoco.mjtGeom.mjGEOM_CAPSULE)
+                           & ~np.isin(model.geom_bodyid, (0, scene.object_body_id)))
+    axes = data.geom_xmat[geoms, 2::3] * model.geom_size[geoms, 1:2]  # the capsules' z axes, half-length long
+    points = data.geom_xpos[geoms] - axes * np.sign(axes[:, 2:3])
+    points[:, 2] -= model.geom_size[geoms, 0]
+    over = np.all((points[:, :2] >= low) & (points[:, :2] <= high), axis=1)
+    return model.geom_bodyid[geoms], points, np.where(over, points[:, 2] - table_z, math.inf)
 
 
 def _table_rows(scene, data: mujoco.MjData, clearance_m: float, dofs) -> tuple[np.ndarray, np.ndarray]:
@@ -109,7 +107,7 @@ def _table_rows(scene, data: mujoco.MjData, clearance_m: float, dofs) -> tuple[n
     row of its lowest point's height over the arm's joints (none: (0,) and (0, n))."""
     errors, rows = [], []
     jacp = np.zeros((3, scene.model.nv))
-    for body, point, height in _low_points(scene, data):
+    for body, point, height in zip(*_low_points(scene, data), strict=True):
         if height < clearance_m:
             mujoco.mj_jac(scene.model, data, jacp, None, point, body)
             errors.append(clearance_m - height)
@@ -130,7 +128,7 @@ def _plate_pose_q(scene, data: mujoco.MjData, position: np.ndarray, normal: np.n
         for q in x.T:
             data.qpos[qadr] = q
             mujoco.mj_kinematics(scene.model, data)
-            heights = np.array([height for _, _, height in _low_points(scene, data)])
+            heights = _low_points(scene, data)[2]
             columns.append(np.r_[data.site_xpos[site] - position,
                                  normal_weight * (data.site_xmat[site].reshape(3, 3)[:, 2] - normal),
                                  np.minimum(heights - clearance_m, 0.0), posture * (q - start_q)])
@@ -183,14 +181,9 @@ def side_joint_path(problem, script: ScriptedSettings, face: int, tilt_rad: floa
                              side.normal_weight, side.table_clearance_m)
     dt, T = model.opt.timestep, problem.simulator.n_steps
 
-    def hermite(q_a, q_b, v_a, v_b, steps):
-        s = np.linspace(0.0, 1.0, steps + 1)[:, None]
-        duration = steps * dt
-        return ((2 * s ** 3 - 3 * s ** 2 + 1) * q_a + (s ** 3 - 2 * s ** 2 + s) * duration * v_a
-                + (-2 * s ** 3 + 3 * s ** 2) * q_b + (s ** 3 - s ** 2) * duration * v_b)
-
-    def spline(steps):  # to the via point, at rest there
-        return hermite(q0, q_via, np.zeros_like(q0), np.zeros_like(q0), steps // 2)
+    def spline(steps):  # a cubic from rest to rest at the via point, over the first half of the transit
+        s = np.linspace(0.0, 1.0, steps // 2 + 1)[:, None]
+        return q0 + (3 * s ** 2 - 2 * s ** 3) * (q_via - q0)
 
     # transit_fraction of the horizon, or longer (up to max_transit_fraction) where the joints would move faster
     # than script.speed_fraction of their limits: in joint space to the via point, then the plate straight along
