@@ -1,9 +1,11 @@
 """Pushes on the cube's side faces (cito_ros.planner.side_faces): the face a goal needs, the transit around the
 cube, the refusals, and a side push planned and executed. Real MuJoCo, real solves."""
+import re
+
 import numpy as np
 import pytest
 
-from cito_ros.planner import side_faces
+from cito_ros.planner import push_limits, side_faces
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.physical import _side_start
 from cito_ros.planner.plan import plan_push
@@ -51,9 +53,17 @@ def test_the_side_transit_stays_clear_of_the_cube_until_the_plate_comes_onto_its
         assert lowest > 0.0, (target, lowest)
 
 
-def test_a_pull_is_refused_with_the_reason(settings):
-    with pytest.raises(ValueError, match=r"10.0 cm behind the object's pushed face .* a pull needs its far face"):
+def test_a_pull_is_refused_with_the_reason_the_far_face_beyond_the_plate_or_not_yet_pushed(settings):
+    pull_m = push_limits.pull_reach_m(posed(settings, (1.10, 0.0)).scene)
+    # the plate reaches over the cube to its far face near the arm, not over the cube where the scene puts it
+    assert 0.7 < pull_m < 0.99 - 0.05
+    beyond = re.escape(f"only a pull on its far face does, and the plate can press that face, with the arm clear of "
+                       f"the object, only for an object within {pull_m:.3f} m of the arm base; this one is 0.990 m out")
+    with pytest.raises(ValueError, match=r"10.0 cm behind the object's pushed face .* " + beyond):
         posed(settings, (0.89, 0.0))
+    with pytest.raises(ValueError, match=r"10.0 cm behind the object's pushed face .* only a pull on its far face "
+                                         r"does, which this planner does not push on yet"):
+        posed(settings, (0.70, 0.0), object_pose=((0.80, 0.0), 0.0))
 
 
 def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_the_near_faces_follow(settings):

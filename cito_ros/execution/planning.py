@@ -13,19 +13,11 @@ from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, 
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import push_model, servo_tracking
 from cito_ros.execution.policy import Policy
-from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status
 from cito_ros.planner.task import turn_rad
 from cito_ros.settings import Settings
-
-
-def warm_up(settings: Settings) -> None:
-    """What a planning process pays for once: the imports, the push reach and the steady push reach (every
-    plan's reach zone: 1.4 s, which the first plan paid before) of the configured scene."""
-    posed = build_problem(settings, PushRequest(settings.node.default_contact_model))
-    push_limits.steady_reach_m(posed.scene, posed.initial_state)
 
 
 def executor_plan_settings(settings: Settings, time_left_s: float, iterations: int, worlds: list | None = None

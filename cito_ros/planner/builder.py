@@ -15,6 +15,7 @@ import numpy as np
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import TABLE_TOP_Z_M, Scene, start_configuration
 from cito_ros.model.simulator import Simulator
+from cito_ros.planner import push_limits
 from cito_ros.planner.problem import PushProblem, StageCost
 from cito_ros.planner.task import PushTask, turn_rad, yaw_of
 from cito_ros.settings import SceneConfig, Settings
@@ -102,11 +103,22 @@ def scene_config(settings: Settings, request: PushRequest) -> SceneConfig:
         config.object, position_m=(float(position[0]), float(position[1])), yaw_rad=float(yaw)))
 
 
+def warm_up(settings: Settings) -> PlanningProblem:
+    """What a planning process pays for once per scene, so that no answer does: the default request's problem of the
+    configured scene, its steady push reach (every plan's reach zone: 1.4 s) and its pull reach (a refusal's reason:
+    1.3 s)."""
+    posed = build_problem(settings, PushRequest(settings.node.default_contact_model))
+    push_limits.steady_reach_m(posed.scene, posed.initial_state)
+    push_limits.pull_reach_m(posed.scene)
+    return posed
+
+
 def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, settings: Settings) -> None:
     """A goal one push cannot reach is refused at once rather than searched for to the time limit:
     - one behind the near face (the object candidate's) by more than the success tolerance: the plate's force on
       the face points into the object within the friction cone, so pushing moves the object away from the face's
-      plane, never back (nor does the tilted plate on a side face: a pull needs the far face);
+      plane, never back (nor does the tilted plate on a side face: a pull needs the far face, which the plate
+      reaches only for an object within push_limits.pull_reach_m of the arm base);
     - one whose turn is more than the orientation tolerance plus task.turn_per_push_rad_per_m times the distance
       the object's centre moves, or plus task.max_push_turn_rad: an off-centre push turns the object as it moves
       it, no push turns it in place, and in a sweep of single pushes none turned it further (docs/results.md: A turn
@@ -116,9 +128,13 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
     push_m = task.target_position_m[:2] - qpos[:2]
     behind_m = -float(np.dot(push_m, normal / np.linalg.norm(normal)))
     if behind_m > settings.task.success_position_error_m:
+        out_m, pull_m = float(np.hypot(*qpos[:2])), push_limits.pull_reach_m(scene)
+        pull = f"and the plate can press that face, with the arm clear of the object, only for an object within " \
+               f"{pull_m:.3f} m of the arm base; this one is {out_m:.3f} m out" if out_m > pull_m else \
+               "which this planner does not push on yet"
         raise ValueError(f"target is {100 * behind_m:.1f} cm behind the object's pushed face (back towards the arm): "
                          f"a push on that face (or on a side face) moves the object away from the arm, never back; "
-                         f"a pull needs its far face, which this planner does not push on")
+                         f"only a pull on its far face does, {pull}")
     turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
     distance_m = float(np.linalg.norm(push_m))
     limits = settings.task

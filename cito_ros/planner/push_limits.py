@@ -16,6 +16,9 @@ hard push, and the time to speed up only lower it. Beyond it the object must be 
 lies wholly on the object's face, the farthest plate position with its face along the push is found
 directly (a penalty least squares that pulls the plate outwards), and the object released there at the
 fastest speed the joint limits allow comes to rest one MuJoCo slide further on.
+
+`pull_reach_m` bounds the other way: how far out the plate can still press the object's far face, the one a pull
+towards the arm needs, with the rest of the arm clear of the object (it reaches over the object to get there).
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ import mujoco
 import numpy as np
 from mujoco import minimize
 
-from cito_ros.model.scene import TABLE_TOP_Z_M, Scene
+from cito_ros.model.scene import PLATE_GEOM, TABLE_TOP_Z_M, Scene
 from cito_ros.model.simulator import FULL_PHYSICS
 from cito_ros.settings import SceneConfig
 
@@ -234,3 +237,51 @@ def steady_reach_m(scene: Scene, initial_state: np.ndarray, margin_rad: float = 
             raise ValueError(f"scene {config.name}: the plate cannot hold the object's face at any height")
         _STEADY_REACH[key] = reach
     return _STEADY_REACH[key]
+
+
+# (scene without the object's pose) -> pull reach, as _STEADY_REACH
+_PULL_REACH: dict[SceneConfig, float] = {}
+
+
+def pull_reach_m(scene: Scene, margin_rad: float = MARGIN_RAD) -> float:
+    """The farthest from the arm base (horizontally, along +x) the object's centre can stand with the plate against
+    the middle of its far face (the face away from the arm, which a pull presses) and no other part of the arm in
+    the object: at each of face_heights_m, the plate's point nearest the arm is pulled outwards along +x (a penalty
+    least squares from stretched starts, as steady_reach_m), the object's far face put there, and every other arm
+    geom's signed distance from the object (mujoco.mj_geomDistance) held at zero or more; 0.0 where nothing reaches.
+    Cached per scene description, the object's pose aside."""
+    key = scene.config.object_pose_aside
+    if key not in _PULL_REACH:
+        model, data = scene.model, mujoco.MjData(scene.model)
+        low, high = _joint_bounds(scene, margin_rad)
+        site, qadr, oadr = scene.robot_site_id, scene.arm_qpos_adr, scene.object_qpos_adr
+        plate, target = model.geom(PLATE_GEOM).id, scene.object_geom_id
+        arm = [g for g in range(model.ngeom) if model.geom_bodyid[g] not in (0, scene.object_body_id) and g != plate]
+        half = float(scene.object_half_size[0])
+        axes = np.diag([scene.plate_radius_m, scene.plate_radius_m, scene.plate_half_thickness_m])
+        towards_arm = np.array([-1.0, 0.0, 0.0])
+        reach = 0.0
+        for height in face_heights_m(scene):
+            def residual(x: np.ndarray, height: float = height) -> np.ndarray:
+                out = np.empty((3 + len(arm), x.shape[1]))
+                for column, q in enumerate(x.T):
+                    data.qpos[qadr] = q
+                    mujoco.mj_kinematics(model, data)
+                    rotation = data.site_xmat[site].reshape(3, 3)
+                    stretched = axes @ rotation.T @ towards_arm  # the plate ellipsoid's support point towards the arm
+                    touch = data.site_xpos[site] + rotation @ (axes @ stretched) / np.linalg.norm(stretched)
+                    data.qpos[oadr:oadr + 7] = (touch[0] - half, touch[1], TABLE_TOP_Z_M + half, 1.0, 0.0, 0.0, 0.0)
+                    mujoco.mj_kinematics(model, data)
+                    inside = [min(mujoco.mj_geomDistance(model, data, g, target, 0.05, None), 0.0) for g in arm]
+                    out[:, column] = np.r_[2.0 - touch[0], 100.0 * touch[1], 100.0 * (touch[2] - height),
+                                           100.0 * np.array(inside)]
+                return out
+
+            for start in _stretched_starts(low, high):
+                q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
+                out = residual(q[:, None])[:, 0]
+                if np.all(np.abs(out[1:3]) <= 100.0 * POSITION_TOLERANCE_M) and \
+                        np.all(out[3:] >= -100.0 * POSITION_TOLERANCE_M):
+                    reach = max(reach, 2.0 - float(out[0]) - half)
+        _PULL_REACH[key] = reach
+    return _PULL_REACH[key]

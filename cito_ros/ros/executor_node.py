@@ -43,7 +43,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
-from cito_ros.execution.planning import compute, warm_up
+from cito_ros.execution.planning import compute
+from cito_ros.planner.builder import warm_up
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.model.scene import ARM_JOINTS

@@ -51,8 +51,7 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from cito_ros.model.scene import Scene, start_configuration
-from cito_ros.planner import push_limits
-from cito_ros.planner.builder import PushRequest, build_problem, scene_config
+from cito_ros.planner.builder import PushRequest, scene_config, warm_up
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import IterationLog
 from cito_ros.ros import messages as ros_messages, parameters as ros_parameters
@@ -297,12 +296,10 @@ class PlannerNode(Node):
         return self._markers[key]
 
     def _warm_up(self) -> None:
-        """What the first plan of the configured scene would otherwise pay for on top of its solve: the steady push
-        reach of its answer's zone, and the scene's marker template (on the recorder's thread)."""
+        """What the first answer for the configured scene would otherwise pay for on top of its solve: the reaches
+        (builder.warm_up), and the scene's marker template (on the recorder's thread)."""
         try:
-            posed = build_problem(self.settings, PushRequest(self.settings.node.default_contact_model))
-            push_limits.steady_reach_m(posed.scene, posed.initial_state)
-            self.recorder.submit(self._scene_markers, posed.scene)
+            self.recorder.submit(self._scene_markers, warm_up(self.settings).scene)
         except Exception as error:  # the first plan pays for it instead
             self.get_logger().warning(f"warm-up failed: {error!r}")
 

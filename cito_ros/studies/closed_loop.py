@@ -34,6 +34,7 @@ from cito_ros.execution.world import Mismatch, SimulatedWorld
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner import push_limits
+from cito_ros.planner.builder import warm_up
 from cito_ros.planner.results import ZONES, zone
 from cito_ros.settings import Settings
 from cito_ros.studies.targets import Goal
@@ -72,6 +73,7 @@ def poses(goal: Goal, world_mismatch: Mismatch, settings: Settings) -> dict[str,
 
 def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Settings) -> dict[str, Any]:
     """One goal in one world, open or closed loop: the episode's record."""
+    warm_up(settings)  # as the executor node does before it serves: no plan's compute time pays for the reaches
     world_mismatch = world_for(mismatch, goal)
     world = SimulatedWorld(settings, world_mismatch, start_configuration(goal.beta), seed=goal.index)
     target = ExecuteGoal(tuple(goal.target_position_m), goal.target_yaw_rad, model)

