@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 
 from cito_ros.execution.executor import Phase
+from cito_ros.execution.policy import Retreat
 from test_execution import deliver, ending_at, retreating
 
 
@@ -32,3 +33,25 @@ def test_a_push_planned_during_the_retreat_for_a_cube_that_then_moved_is_planned
     true_x, true_y = world.true_object_pose()[0][:2]
     assert again.kind == "plan" and abs(y - job.object_pose[0][1] - 0.02) < 0.003
     assert np.hypot(x - true_x, y - true_y) < 0.003
+
+
+def test_the_arm_comes_back_from_a_side_push_along_the_way_it_went_within_the_retreat_speed(settings):
+    """After a push on a side face the arm reached around the cube: the straight way back to the start pose crosses
+    it (it threw one cube off the table), so the retreat follows the arm's measured path reversed, slowed to the
+    retreat's speed where that path was faster, and ends at rest where the push began."""
+    scene_limit, executor = np.full(7, 2.0), settings.executor
+    came = np.linspace(np.zeros(7), np.full(7, 4.0), 201)  # a path 0.01 s a step: 2 rad/s, the limit itself
+    came[:, 1] += 0.3 * np.sin(np.linspace(0.0, np.pi, 201))  # around something
+    retreat = Retreat.back_along(5.0, came[::-1], 0.01, scene_limit, executor)
+    assert retreat.end_s - 5.0 >= 2.0 / executor.retreat_speed_fraction - 1e-9  # slowed from the limit
+    times = np.linspace(5.0, retreat.end_s, 2001)
+    poses = np.array([retreat.at(t)[0] for t in times])
+    assert np.allclose(poses[0], came[-1]) and np.allclose(poses[-1], came[0]) and not retreat.at(retreat.end_s)[1].any()
+    speeds = np.abs(np.diff(poses, axis=0)) / np.diff(times)[:, None]
+    assert speeds.max() <= executor.retreat_speed_fraction * 2.0 * (1 + 1e-6)
+    # every pose on the way it came (between two of its poses), none on the straight way
+    nearest = np.min(np.linalg.norm(poses[:, None, :] - came[None, :, :], axis=2), axis=1)
+    assert nearest.max() <= 0.5 * np.linalg.norm(np.diff(came, axis=0), axis=1).max() + 1e-9
+    straight = Retreat.between(5.0, came[-1], came[0], scene_limit, executor)
+    middle = straight.at(0.5 * (5.0 + straight.end_s))[0]
+    assert np.min(np.linalg.norm(came - middle, axis=1)) > 0.1  # the straight way leaves it

@@ -7,7 +7,7 @@ import pytest
 
 from cito_ros.planner import push_limits, side_faces
 from cito_ros.planner.builder import PushRequest, build_problem
-from cito_ros.planner.physical import _side_start
+from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.stages import physical_twin
 
@@ -68,7 +68,7 @@ def test_a_pull_is_refused_with_the_reason_the_far_face_beyond_the_plate_or_not_
 
 def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_the_near_faces_follow(settings):
     beside = PushRequest("vscm", 5.0, None, (0.99, 0.12), 0.0)
-    assert _side_start(settings, beside).face == 1
+    assert side_start(settings, beside).face == 1
     # the cube 11 cm further out: its side faces are beyond the tilted plate, and only the near face is tried
     out = PushRequest("vscm", 5.0, None, (1.10, 0.12), 0.0, None, ((1.10, 0.0), 0.0))
     problem = build_problem(settings, out)
@@ -76,11 +76,11 @@ def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_th
                                           settings.stages.scripted.side_faces, settings.stages.scripted.joint_margin_rad)
     assert short_m > settings.stages.scripted.side_faces.reach_tolerance_m
     assert tilt == settings.stages.scripted.side_faces.tilts_rad[-1]
-    assert _side_start(settings, out) is None
+    assert side_start(settings, out) is None
     # the other side face, where `faces` has it
     other = PushRequest("vscm", 5.0, None, (0.99, -0.12), 0.0)
-    assert _side_start(settings, other).face == 3
-    assert _side_start(settings.with_overrides({"stages.scripted.side_faces.faces": [1]}), other) is None
+    assert side_start(settings, other).face == 3
+    assert side_start(settings.with_overrides({"stages.scripted.side_faces.faces": [1]}), other) is None
 
 
 @pytest.mark.parametrize("target, yaw", [((0.99, 0.15), 0.0), ((1.03, -0.15), 0.2)])

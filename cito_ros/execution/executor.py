@@ -11,10 +11,10 @@ computed from the state at time t takes effect at t plus its compute time on the
 Phases: `planning` (the arm held while a push is planned), `pushing` (the policy, replanned), `settling` (the arm
 held at the push's end, or where it is once the cube is executor.off_path_m off the push's path, until the cube has
 come to rest; then the push is judged by the camera: at the goal, done; else, while pushes and time are left,
-`retreating`: the arm goes back along a minimum-jerk path to where the execution started, and a new push is planned
-from there meanwhile, made once the arm is there and only if the model predicts it brings the cube closer (both
-errors against their tolerances) and moves it by more than executor.moved_fraction of them),
-`done`. An execution begun with the arm against the cube (where the last one ended or was cancelled) begins
+`retreating`: the arm goes back along a minimum-jerk path to where the execution started (from a side push, the
+way it came), and a new push is planned from there meanwhile, made once the arm is there and only if the model
+predicts it brings the cube closer (both errors against their tolerances) and moves it by more than
+executor.moved_fraction of them), `done`. An execution begun with the arm against the cube (where the last one ended or was cancelled) begins
 `retreating` to the start pose of settings.beta. Measurements older than executor.stale_after_s, a cancel, the time
 limit, a cube seen tipped past its edge or a push that cannot be planned end the execution with the arm held where
 it is.
@@ -221,9 +221,10 @@ class Executor:
                                                            f"{100 * position:.2f} cm and {orientation:.3f} rad from "
                                                            f"the goal", None, "pushes_spent")
             # another push, planned from the start pose (from beside the cube a push starts against it)
-            self.phase = Phase.RETREATING
-            self._retreat = Retreat.between(now_s, joints.q, self._home_q, self.model.scene.velocity_limit,
-                                            self.settings.executor)
+            self.phase, limit, arm = Phase.RETREATING, self.model.scene.velocity_limit, np.array(arm)
+            self._retreat = Retreat.back_along(now_s, arm[::-1, 1:8], float(np.mean(np.diff(arm[:, 0]))), limit,
+                                               self.settings.executor) if self.policy.face and len(arm) > 1 else \
+                Retreat.between(now_s, joints.q, self._home_q, limit, self.settings.executor)  # (as the arm came)
 
     def _moved_since(self, policy: Policy, now_s: float) -> bool:
         """Whether the cube has left where a push was planned for it: moved since by more than

@@ -223,8 +223,8 @@ class PushModel:
         if worst_world > running.worst_world:
             return None
         # iLQR's cost only falls, so its outcome is the last kept step's, whose backward pass gave solver.gains
-        return self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem, worst_world,
-                           running.target)
+        return dataclasses.replace(self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem,
+                                               worst_world, running.target), face=running.face)
 
 
 # per process: the models of the goal that runs, built once (its scene's cube and the last identified one)

@@ -5,6 +5,7 @@ outcome: a push planned from rest with its policy, one MPC replan, or a `Failure
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -13,15 +14,18 @@ from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, 
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import push_model, servo_tracking
 from cito_ros.execution.policy import Policy
+from cito_ros.model.scene import pushed_face
 from cito_ros.planner.builder import PushRequest, build_problem
+from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status
+from cito_ros.planner.side_faces import NEAR
 from cito_ros.planner.task import turn_rad
 from cito_ros.settings import Settings
 
 
-def executor_plan_settings(settings: Settings, time_left_s: float, iterations: int, worlds: list | None = None
-                           ) -> Settings:
+def executor_plan_settings(settings: Settings, time_left_s: float, iterations: int, worlds: list | None = None,
+                           overrides: dict | None = None) -> Settings:
     """The planner's settings for the executor's pushes: `iterations` within the time left (at most
     plan_time_limit_s), and a plan checked with the controller that will run it, the executor's servo with its speed
     guard (a push the guard changes is judged as it runs: docs/results.md), in the model
@@ -29,7 +33,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
     is not taken), or in `worlds` (friction and mass scales: those identify left possible). Its first script is
     made with the servo, the next with the planner's stiff gains (gain_scale 1 /
     servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes. Its
-    pushes are on the near face only (side faces: docs/planner.md)."""
+    pushes are on the near face only (side faces: docs/planner.md), unless `overrides` (more of them) say so."""
     executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
     return dataclasses.replace(settings.with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
@@ -40,8 +44,8 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
         "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],
-        "stages.scripted.variants.gain_scale": [script.gain_scale / executor.servo_gain_scale, *variants.gain_scale]}),
-        tracking=servo_tracking(settings, worlds))
+        "stages.scripted.variants.gain_scale": [script.gain_scale / executor.servo_gain_scale, *variants.gain_scale],
+        **(overrides or {})}), tracking=servo_tracking(settings, worlds))
 
 
 def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure | None:
@@ -52,8 +56,8 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended. After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it."""
-    if job.kind == "replan":  # in the model the running push was planned in
-        return push_model(settings, goal, job.running.object_scales).replan(
+    if job.kind == "replan":  # in the model the running push was planned in: its knots, its cube
+        return push_model(_knotted(settings, job.running.control_period_s), goal, job.running.object_scales).replan(
             job.now_s, job.state, job.running, settings.executor.replan_budget_s)
     model = push_model(settings, goal)
     executor = settings.executor
@@ -63,6 +67,9 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
                         executor.identify_friction_scales, executor.identified_spread, executor.identify_tolerance)
         scales, worlds = (cube.friction_scale, 1.0), [cube.worlds(executor.world_friction_scales),
                                                       executor.world_mass_scales]
+    side = _side_first(settings, goal, job, scales, worlds)
+    if side is not None:
+        return side
     try:
         sequence = job.pushes_left > 0 and executor.waypoint_fraction > 0
         request, result = _plan_to(settings, goal, job, 1.0,
@@ -72,34 +79,91 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
                                worlds)
             if shorter[1].sturdy:
                 request, result = shorter
-        start = build_problem(settings.with_overrides({"horizon_s": float(result.knot_time_s[-1])}),
-                              request).initial_state
     except ValueError as error:
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
+    return _policy(settings, goal, job, request, result, scales)
+
+
+def _policy(settings: Settings, goal: ExecuteGoal, job: Job, request: PushRequest, result: PlanResult,
+            scales: tuple[float, float], face: int = NEAR) -> Policy:
+    """The plan's policy from the job's state, in the model of the plan's knots (a side push's are longer)."""
+    knotted = _knotted(settings, float(result.knot_time_s[1] - result.knot_time_s[0]))
+    start = build_problem(knotted.with_overrides({"horizon_s": float(result.knot_time_s[-1])}), request).initial_state
     target = ((float(request.target_position_m[0]), float(request.target_position_m[1])), request.target_yaw_rad)
-    return dataclasses.replace(push_model(settings, goal, scales).policy(job.now_s, start, result.knot_torques_Nm,
-                                                                         target=target), sturdy=result.sturdy)
+    return dataclasses.replace(push_model(knotted, goal, scales).policy(job.now_s, start, result.knot_torques_Nm,
+                                                                        target=target), sturdy=result.sturdy, face=face)
 
 
-def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, iterations: int,
-             object_scales: tuple[float, float], worlds: list | None) -> tuple[PushRequest, PlanResult]:
+def _knotted(settings: Settings, control_period_s: float) -> Settings:
+    """The settings with knots of control_period_s (the same settings where they have them)."""
+    return settings if math.isclose(control_period_s, settings.control_period_s) else \
+        settings.with_overrides({"control_period_s": control_period_s})
+
+
+# the side face's starts alone: where they are not sturdy, the push is planned as any other
+SIDE_ONLY = {"stages.scripted.side_faces.enabled": True, "stages.scripted.enabled": False, "stages.starts": []}
+
+
+def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[float, float],
+                worlds: list | None) -> Policy | None:
+    """executor.side_first_rad's push, with pushes left after it: a goal more than that off the near face's inward
+    normal is first pushed towards on the side face its offset across that normal needs, to the waypoint that
+    leaves the rest of the way along the normal, the turn shared in proportion to the two legs; planned with the side
+    face's starts alone, taken if sturdy (the plate pushing the near face outside its friction cone slides along it,
+    and where the cube goes then hangs on the friction the executor does not know: docs/results.md, Where the misses
+    are). None where it does not apply, the plate does not reach that side face, or its plan is not sturdy."""
+    executor = settings.executor
+    (x, y), yaw = job.object_pose
+    near_rad = yaw + pushed_face((x, y), yaw) * math.pi / 2
+    normal = np.array([math.cos(near_rad), math.sin(near_rad)])
+    push = np.asarray(goal.target_position_m, dtype=float)[:2] - (x, y)
+    aside_m, along_m = float(push @ (-normal[1], normal[0])), float(push @ normal)
+    if executor.side_first_rad <= 0.0 or job.pushes_left <= 0 or along_m <= 0.0 or \
+            abs(math.atan2(aside_m, along_m)) <= executor.side_first_rad:
+        return None
+    waypoint = dataclasses.replace(
+        goal, target_position_m=(x - aside_m * normal[1], y + aside_m * normal[0]),
+        target_yaw_rad=yaw + abs(aside_m) / (abs(aside_m) + along_m) * turn_rad(yaw, goal.target_yaw_rad))
+    plan_settings = executor_plan_settings(settings, job.time_left_s, executor.plan_iterations, worlds, SIDE_ONLY)
+    request = _request(waypoint, job, 1.0, scales)
+    try:
+        start = side_start(plan_settings, request)
+        if start is None:
+            return None
+        result = _plan(request, plan_settings)
+    except ValueError:
+        return None
+    if not result.sturdy or result.status is Status.NUMERICAL_ERROR:
+        return None
+    return _policy(settings, goal, job, request, result, scales, start.face)
+
+
+def _request(goal: ExecuteGoal, job: Job, fraction: float, object_scales: tuple[float, float]) -> PushRequest:
     """A push from the job's measured arm and cube to `fraction` of the way to the goal, in position and in yaw
-    (the shorter way round), planned within `iterations` for a cube whose friction and mass are object_scales
-    times the scene's, sturdy in `worlds` around it (friction and mass scales; None: executor.world_*_scales);
-    ValueError where none can be planned."""
+    (the shorter way round), for a cube whose friction and mass are object_scales times the scene's."""
     (x, y), yaw = job.object_pose
     position, target_yaw = np.array(goal.target_position_m), goal.target_yaw_rad
     if fraction < 1.0:
         position = np.array([x, y]) + fraction * (position - np.array([x, y]))
         target_yaw = yaw + fraction * turn_rad(yaw, target_yaw)
-    request = PushRequest(goal.contact_model, start_q=job.q, target_position_m=position, target_yaw_rad=target_yaw,
-                          scene=goal.scene, object_pose=((x, y), yaw), object_scales=object_scales)
-    return request, plan_push(request.contact_model, start_q=request.start_q,
-                              target_position_m=request.target_position_m, target_yaw_rad=request.target_yaw_rad,
-                              scene=request.scene, object_pose=request.object_pose, object_scales=object_scales,
-                              settings=executor_plan_settings(settings, job.time_left_s, iterations, worlds))
+    return PushRequest(goal.contact_model, start_q=job.q, target_position_m=position, target_yaw_rad=target_yaw,
+                       scene=goal.scene, object_pose=((x, y), yaw), object_scales=object_scales)
+
+
+def _plan(request: PushRequest, settings: Settings) -> PlanResult:
+    return plan_push(request.contact_model, start_q=request.start_q, target_position_m=request.target_position_m,
+                     target_yaw_rad=request.target_yaw_rad, scene=request.scene, object_pose=request.object_pose,
+                     object_scales=request.object_scales, settings=settings)
+
+
+def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, iterations: int,
+             object_scales: tuple[float, float], worlds: list | None) -> tuple[PushRequest, PlanResult]:
+    """_request's push planned within `iterations`, sturdy in `worlds` around the cube (friction and mass scales;
+    None: executor.world_*_scales); ValueError where none can be planned."""
+    request = _request(goal, job, fraction, object_scales)
+    return request, _plan(request, executor_plan_settings(settings, job.time_left_s, iterations, worlds))
 
 
 def work_in_line(executor: Executor, now_s: float) -> Work | None:

@@ -11,7 +11,8 @@ then velocities: the arm's joints and the cube's free joint), and K the knot's f
 one knot's to the next. These are the torques u of the planner's model, in which the motors add the arm's
 bias forces (gravity, Coriolis): a robot that adds none gets u plus those, computed from the model.
 
-`Retreat` is the other path the executor has the arm follow: a slow minimum-jerk joint path between poses.
+`Retreat` is the other path the executor has the arm follow: a slow minimum-jerk joint path between poses, or,
+after a side push, back the way the push came.
 """
 from __future__ import annotations
 
@@ -39,6 +40,8 @@ class Policy:
     object_scales: tuple[float, float] = (1.0, 1.0)  # the cube's friction and mass in the model it was planned in
     target: tuple[tuple[float, float], float] | None = None  # ((x, y), yaw) it was planned to: a waypoint, or None
                                  # for the goal; its replans are held to the same
+    face: int = 0                # the cube's face it pushes (side_faces.face_towards: 0 the near face, 1 and 3 the
+                                 # side faces, which the arm reaches around the cube)
 
     @property
     def end_s(self) -> float:
@@ -95,12 +98,13 @@ def bias_torques(scene: Scene, data: mujoco.MjData, q: np.ndarray, qdot: np.ndar
 
 @dataclass(frozen=True)
 class Retreat:
-    """A minimum-jerk joint path from one pose to another, on the robot's clock."""
+    """A joint path from one pose to another, on the robot's clock: minimum jerk, or along given poses."""
 
     start_s: float
     end_s: float
     from_q: np.ndarray
     to_q: np.ndarray
+    path_q: np.ndarray | None = None  # (k, 7) joint poses, evenly in time from from_q to to_q (None: minimum jerk)
 
     @classmethod
     def between(cls, start_s: float, from_q: np.ndarray, to_q: np.ndarray, velocity_limit: np.ndarray,
@@ -110,10 +114,26 @@ class Retreat:
         fastest = float(np.max(1.875 * np.abs(to_q - from_q) / (settings.retreat_speed_fraction * velocity_limit)))
         return cls(start_s, start_s + max(settings.retreat_min_s, fastest), from_q.copy(), to_q.copy())
 
+    @classmethod
+    def back_along(cls, start_s: float, path_q: np.ndarray, timestep_s: float, velocity_limit: np.ndarray,
+                   settings) -> Retreat:
+        """Along path_q (joint poses timestep_s apart, the way a push came, reversed), slowed where a joint would
+        pass settings.retreat_speed_fraction of its limit, and at least settings.retreat_min_s long: the straight
+        way back from a side push crosses the cube the arm reached around."""
+        speed = np.max(np.abs(np.diff(path_q, axis=0)) / (timestep_s * settings.retreat_speed_fraction *
+                                                            velocity_limit), initial=0.0)
+        duration = max(settings.retreat_min_s, (len(path_q) - 1) * timestep_s * max(float(speed), 1.0))
+        return cls(start_s, start_s + duration, path_q[0].copy(), path_q[-1].copy(), path_q.copy())
+
     def at(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The joint positions and velocities at time_s."""
         duration = self.end_s - self.start_s
         s = min(max((time_s - self.start_s) / duration, 0.0), 1.0)
+        if self.path_q is not None:
+            where = s * (len(self.path_q) - 1)
+            k = min(int(where), len(self.path_q) - 2)
+            step = self.path_q[k + 1] - self.path_q[k]
+            return self.path_q[k] + (where - k) * step, (s < 1.0) * (len(self.path_q) - 1) / duration * step
         step = self.to_q - self.from_q
         return self.from_q + (10 * s**3 - 15 * s**4 + 6 * s**5) * step, \
             (30 * s**2 - 60 * s**3 + 30 * s**4) / duration * step

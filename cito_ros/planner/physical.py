@@ -59,7 +59,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     first_horizon_s = settings.round_horizons_s[0]
     # (settings overrides, discovery start fraction, None for a script or a SideStart, stage-name prefix)
     jobs = []
-    side = _side_start(settings, request)
+    side = side_start(settings, request)
     if side is not None:  # first the face the goal needs; the near face's starts follow, as for any goal
         faces = stages.scripted.side_faces
         overrides = {"horizon_s": settings.round_horizon_s(faces.horizon_scale),
@@ -75,6 +75,8 @@ def solve_physical(settings: Settings, request: PushRequest, *,
                          f"{horizon_label(horizon_s)}scripted {i + 2}: "))
     jobs += [({"horizon_s": horizon_s}, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
              for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
+    if not jobs:  # no discoveries (stages.starts) and the scripts off: the side faces' alone, which this goal needs not
+        raise ValueError("no start to solve: the goal needs no side face, and the scripts and discoveries are off")
     width = 2 if stages.parallel and len(jobs) > 1 else 1
     scripts = sum(1 for _, start, _ in jobs if not _discovery(start))  # before the discoveries
     abandoned = [threading.Event() for _ in jobs]
@@ -157,7 +159,7 @@ def _discovery(start: float | SideStart | None) -> bool:
     return start is not None and not isinstance(start, SideStart)
 
 
-def _side_start(settings: Settings, request: PushRequest) -> SideStart | None:
+def side_start(settings: Settings, request: PushRequest) -> SideStart | None:
     """The side face the request's goal needs (side_faces.face_needed), where it is one of side_faces.faces and the
     plate reaches its contact, with the tilt that reaches it; else None: the near face's starts alone."""
     side = settings.stages.scripted.side_faces

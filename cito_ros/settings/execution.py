@@ -78,6 +78,10 @@ class ExecutorSettings:
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
+    side_first_rad: float = setting(
+        "a push towards a goal more than this off the near face's inward normal (outside its friction cone), with "
+        "pushes left after it, is first made on the side face towards the goal's offset across that normal, to the "
+        "waypoint that leaves the rest of the way along it, where that plan is sturdy (0: never)", minimum=0.0)
     waypoint_fraction: float = setting("a push whose plan to the goal is not sturdy (PlanResult.sturdy), with pushes "
                                        "left after it, is planned again to this fraction of the way there, and that "
                                        "plan taken if it is sturdy (0: never)", minimum=0.0)

@@ -184,9 +184,10 @@ class StagesSettings:
                                  "tolerances (at most 1)", positive=True)
 
     def check(self, path: str) -> None:
-        if not self.starts or any(start >= 1.0 for start in self.starts):
-            raise ValueError(f"{path}.starts must be one or more fractions of the horizon in [0, 1), "
-                             f"got {list(self.starts)}")
+        if any(start >= 1.0 for start in self.starts) or not (self.starts or self.scripted.enabled or
+                                                             self.scripted.side_faces.enabled):
+            raise ValueError(f"{path}.starts must be fractions of the horizon in [0, 1), at least one where the scripts "
+                             f"and the side faces are off, got {list(self.starts)}")
         if not self.horizon_scales:
             raise ValueError(f"{path}.horizon_scales must list at least one scale of horizon_s")
         if self.goal_margin > 1.0:
