@@ -1,12 +1,14 @@
 """The executor between pushes: the next push planned while the arm retreats, and planned again if the cube is not
-where it was planned for when the arm is back. Real MuJoCo, the executor in process."""
+where it was planned for when the arm is back; after a side push, the arm back along the way it went. Real MuJoCo, the
+executor in process."""
 import dataclasses
 
 import numpy as np
 
-from cito_ros.execution.executor import Phase
+from cito_ros.execution.executor import ExecuteGoal, Phase
+from cito_ros.execution.planning import work_in_line
 from cito_ros.execution.policy import Retreat
-from test_execution import deliver, ending_at, retreating
+from test_execution import deliver, ending_at, retreating, started
 
 
 def test_a_push_planned_during_the_retreat_for_a_cube_that_then_moved_is_planned_again_from_where_it_is(settings):
@@ -55,3 +57,23 @@ def test_the_arm_comes_back_from_a_side_push_along_the_way_it_went_within_the_re
     straight = Retreat.between(5.0, came[-1], came[0], scene_limit, executor)
     middle = straight.at(0.5 * (5.0 + straight.end_s))[0]
     assert np.min(np.linalg.norm(came - middle, axis=1)) > 0.1  # the straight way leaves it
+
+
+def test_after_a_side_push_the_arm_comes_back_the_way_it_went_and_leaves_the_cube_where_it_rests(settings):
+    """A goal 38 degrees off the near face's normal: the first push goes across on side face 1, to the waypoint
+    beside the goal's line, so it ends away from the goal, and the arm comes back along its own path to where the
+    execution started, the cube left where it came to rest (the straight way back knocked it 8 cm)."""
+    executor, world = started(settings, goal=ExecuteGoal((1.12, 0.10), 0.0, "vscm"))
+    while executor.phase is not Phase.RETREATING and world.time_s < 25:
+        work_in_line(executor, world.time_s)
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert executor.phase is Phase.RETREATING and executor.pushes == 1
+    assert executor.policy.face == 1 and executor._retreat.path_q is not None
+    cube, home = world.true_object_pose()[0], executor._home_q
+    assert abs(cube[1] - 0.10) < settings.task.success_position_error_m  # across to the goal's line
+    while executor.phase is Phase.RETREATING:
+        world.step(executor.command(world.time_s))
+        deliver(executor, world)
+    assert np.abs(world.joints().q - home).max() < 0.05
+    assert np.linalg.norm(world.true_object_pose()[0][:2] - cube[:2]) < 0.003
