@@ -220,11 +220,12 @@ class Executor:
                 return self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                            f"{100 * position:.2f} cm and {orientation:.3f} rad from "
                                                            f"the goal", None, "pushes_spent")
-            # another push, planned from the start pose (from beside the cube a push starts against it)
+            # another push, planned from the start pose (from beside the cube a push starts against it); from a side
+            # push back the way the arm came, measured (the straight way crosses the cube it reached around)
             self.phase, limit, arm = Phase.RETREATING, self.model.scene.velocity_limit, np.array(arm)
             self._retreat = Retreat.back_along(now_s, arm[::-1, 1:8], float(np.mean(np.diff(arm[:, 0]))), limit,
                                                self.settings.executor) if self.policy.face and len(arm) > 1 else \
-                Retreat.between(now_s, joints.q, self._home_q, limit, self.settings.executor)  # (as the arm came)
+                Retreat.between(now_s, joints.q, self._home_q, limit, self.settings.executor)
 
     def _moved_since(self, policy: Policy, now_s: float) -> bool:
         """Whether the cube has left where a push was planned for it: moved since by more than

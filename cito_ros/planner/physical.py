@@ -75,7 +75,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
                          f"{horizon_label(horizon_s)}scripted {i + 2}: "))
     jobs += [({"horizon_s": horizon_s}, fraction, horizon_label(horizon_s) + (f"start {i + 1}: " if labelled else ""))
              for horizon_s in settings.round_horizons_s for i, fraction in enumerate(stages.starts)]
-    if not jobs:  # no discoveries (stages.starts) and the scripts off: the side faces' alone, which this goal needs not
+    if not jobs:  # no discoveries (stages.starts), the scripts off, and a goal that needs no side face
         raise ValueError("no start to solve: the goal needs no side face, and the scripts and discoveries are off")
     width = 2 if stages.parallel and len(jobs) > 1 else 1
     scripts = sum(1 for _, start, _ in jobs if not _discovery(start))  # before the discoveries
