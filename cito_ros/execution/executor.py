@@ -210,10 +210,10 @@ class Executor:
         if self.phase is Phase.SETTLING and now_s - self._settle_since_s >= self.settings.executor.settle_s and \
                 self.cube_at_rest:
             position, orientation = self.errors(now_s)  # at rest: the rest window's mean
-            start, arm, cube = self._recording
+            (start, arm, cube), self._recording = self._recording, None
+            arm = np.array(arm)
             if len(arm) > 1 and cube:  # what the push showed of the cube (identify)
-                self.observed.append(Observed(start, np.array(arm), np.array(cube)))
-            self._recording = None
+                self.observed.append(Observed(start, arm, np.array(cube)))
             if self._succeeded(position, orientation, ""):
                 return
             if self.pushes >= self.settings.executor.max_pushes:
@@ -222,7 +222,7 @@ class Executor:
                                                            f"the goal", None, "pushes_spent")
             # another push, planned from the start pose (from beside the cube a push starts against it); from a side
             # push back the way the arm came, measured (the straight way crosses the cube it reached around)
-            self.phase, limit, arm = Phase.RETREATING, self.model.scene.velocity_limit, np.array(arm)
+            self.phase, limit = Phase.RETREATING, self.model.scene.velocity_limit
             self._retreat = Retreat.back_along(now_s, arm[::-1, 1:8], float(np.mean(np.diff(arm[:, 0]))), limit,
                                                self.settings.executor) if self.policy.face and len(arm) > 1 else \
                 Retreat.between(now_s, joints.q, self._home_q, limit, self.settings.executor)

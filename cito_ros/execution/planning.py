@@ -14,12 +14,11 @@ from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, 
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import push_model, servo_tracking
 from cito_ros.execution.policy import Policy
-from cito_ros.model.scene import pushed_face
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status
-from cito_ros.planner.side_faces import NEAR
+from cito_ros.planner.side_faces import NEAR, near_normal_rad
 from cito_ros.planner.task import turn_rad
 from cito_ros.settings import Settings
 
@@ -116,7 +115,7 @@ def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[f
     are). None where it does not apply, the plate does not reach that side face, or its plan is not sturdy."""
     executor = settings.executor
     (x, y), yaw = job.object_pose
-    near_rad = yaw + pushed_face((x, y), yaw) * math.pi / 2
+    near_rad = near_normal_rad((x, y), yaw)
     normal = np.array([math.cos(near_rad), math.sin(near_rad)])
     push = np.asarray(goal.target_position_m, dtype=float)[:2] - (x, y)
     aside_m, along_m = float(push @ (-normal[1], normal[0])), float(push @ normal)

@@ -37,14 +37,18 @@ def face_towards(near_normal_rad: float, direction_rad: float) -> int:
     return round(turn_rad(near_normal_rad, direction_rad) / (math.pi / 2)) % 4
 
 
+def near_normal_rad(object_xy, object_yaw_rad: float) -> float:
+    """The world yaw of the inward normal of a cube's near face, the one towards the arm base (scene.pushed_face,
+    where the object candidate sits), the cube at object_xy with object_yaw_rad."""
+    return object_yaw_rad + pushed_face(object_xy, object_yaw_rad) * math.pi / 2
+
+
 def face_for(object_xy, object_yaw_rad: float, target_xy) -> int:
-    """face_towards for a push from a cube at object_xy with object_yaw_rad towards target_xy, its near face the
-    one towards the arm base (scene.pushed_face, where the object candidate sits)."""
+    """face_towards for a push from a cube at object_xy with object_yaw_rad towards target_xy (near_normal_rad)."""
     push = np.asarray(target_xy, dtype=float)[:2] - np.asarray(object_xy, dtype=float)[:2]
     if np.linalg.norm(push) < 1e-9:
         return NEAR
-    near_rad = object_yaw_rad + pushed_face(object_xy, object_yaw_rad) * math.pi / 2
-    return face_towards(near_rad, math.atan2(push[1], push[0]))
+    return face_towards(near_normal_rad(object_xy, object_yaw_rad), math.atan2(push[1], push[0]))
 
 
 def face_needed(object_xy, object_yaw_rad: float, target_xy, settings) -> int:

@@ -44,10 +44,10 @@ from std_msgs.msg import Float64MultiArray, Header
 
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
 from cito_ros.execution.planning import compute
-from cito_ros.planner.builder import warm_up
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.model.scene import ARM_JOINTS
+from cito_ros.planner.builder import warm_up
 from cito_ros.ros import messages as ros_messages, parameters as ros_parameters
 from cito_ros.ros.bag import TopicQos
 from cito_ros.ros.process import LoopNode, run
