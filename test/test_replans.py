@@ -56,6 +56,16 @@ def test_a_push_is_replanned_while_it_runs_only_with_replans_on(settings):
         assert (job is not None and job.kind == "replan") if replan else job is None
 
 
+def test_a_side_push_is_replanned_only_with_side_replans_on(settings):
+    for side_replans in (False, True):
+        executor, world = push_under_way(settings.with_overrides({"executor.replan": True,
+                                                                   "executor.replan_side_pushes": side_replans}))
+        assert executor.job(world.time_s).kind == "replan"  # a push on the near face is replanned either way
+        executor.policy = dataclasses.replace(executor.policy, face=1)
+        job = executor.job(world.time_s)
+        assert (job is not None and job.kind == "replan") if side_replans else job is None
+
+
 def test_a_replan_is_taken_only_if_the_servo_would_end_it_as_near_the_goal_in_the_executors_worlds_as_the_push(
         settings):
     """The same replan from the same measured state: taken where the running push's worst world is unknown,

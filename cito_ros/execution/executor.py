@@ -106,14 +106,12 @@ class Executor:
         self.message = ""
         self.policy: Policy | None = None
         self._pending: Work | None = None
-        self._push_end_s = math.nan
         self._hold_q: np.ndarray | None = None
         self._home_q: np.ndarray | None = None    # the arm where the execution started: each push starts there
         self._retreat: Retreat | None = None
-        self._settle_since_s = math.nan
+        self._push_end_s = self._settle_since_s = math.nan
         self._joints: JointReading | None = None
-        self._pose_arrival_s = -math.inf
-        self._joints_arrival_s = -math.inf
+        self._pose_arrival_s = self._joints_arrival_s = -math.inf
         self.started_s: float | None = None
         self.pushes = 0
         self.pushes_cut = 0                    # pushes cut short with the cube off their path (executor.off_path_m)
@@ -301,7 +299,9 @@ class Executor:
                 return None
             # the next push is planned while the arm retreats, from where the retreat ends, once the cube is at rest
             ahead = self.phase is Phase.RETREATING and self.cube_at_rest
-            if self.phase is not Phase.PLANNING and not ahead and not (self.phase is Phase.PUSHING and executor.replan):
+            replan = self.phase is Phase.PUSHING and executor.replan and \
+                (executor.replan_side_pushes or not self.policy.face)  # a side push runs its plan's policy
+            if self.phase is not Phase.PLANNING and not ahead and not replan:
                 return None
             state = self.estimator.state(self._joints, now_s, self.cube_at_rest)
             back_q = self.model.draw_back_q(state) if self.phase is Phase.PLANNING and not self._retreat else None

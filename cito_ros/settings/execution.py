@@ -60,6 +60,9 @@ class ExecutorSettings:
 
     replan: bool = setting("replan the push from the measured state while it runs (MPC); off, the push runs its "
                            "plan's policy and a new push is planned from where the cube comes to rest")
+    replan_side_pushes: bool = setting("with replan, a push on a side face (side_first_rad) is replanned too; off, "
+                                       "it runs its plan's policy (its replans, over the 0.04 s knots of a 4 s push, "
+                                       "ran at 7-14 Hz and left as many cubes at the goal: docs/results.md)")
     replan_budget_s: float = setting("a replan stops after the iteration that passes this much time (s)",
                                      positive=True)
     replan_iterations: int = setting("iLQR iterations of a replan at most", minimum=1)
