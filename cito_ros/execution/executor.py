@@ -299,9 +299,8 @@ class Executor:
                 return None
             # the next push is planned while the arm retreats, from where the retreat ends, once the cube is at rest
             ahead = self.phase is Phase.RETREATING and self.cube_at_rest
-            replan = self.phase is Phase.PUSHING and executor.replan and \
-                (executor.replan_side_pushes or not self.policy.face)  # a side push runs its plan's policy
-            if self.phase is not Phase.PLANNING and not ahead and not replan:
+            if self.phase is not Phase.PLANNING and not ahead and \
+                    not (self.phase is Phase.PUSHING and executor.replans(self.policy.face)):
                 return None
             state = self.estimator.state(self._joints, now_s, self.cube_at_rest)
             back_q = self.model.draw_back_q(state) if self.phase is Phase.PLANNING and not self._retreat else None

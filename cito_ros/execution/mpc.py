@@ -139,13 +139,13 @@ class PushModel:
 
     def policy(self, start_s: float, state: np.ndarray, torques: np.ndarray, gains: np.ndarray | None = None,
                problem: PushProblem | None = None, worst_world: float | None = None,
-               target: tuple[tuple[float, float], float] | None = None) -> Policy:
+               target: tuple[tuple[float, float], float] | None = None, face: int = 0) -> Policy:
         """The policy of knot torques from `state` at start_s, a push to `target` (task_to): their rollout is the
         reference. Its gains on the cube's state are the backward pass's (given, or from a backward pass at the
         torques) times executor.object_gain_scale; on the arm's joints, the executor's servo PD (servo_gains): the
         backward pass's own arm gains are soft where the cost does not care where the arm is, and a heavier or
         grippier cube than the model's then pushes the arm off its path. Its worst_world is given, or computed here
-        (with executor.replan)."""
+        (where a push on `face` is replanned: executor.replans)."""
         task = self.task_to(target)
         problem = self.problem(state, len(torques), torques, task) if problem is None else problem
         z = problem.with_torques(torques)
@@ -162,10 +162,10 @@ class PushModel:
         gains[:, np.arange(7), nv + arm] = -self.servo_gains[1]
         if worst_world is None:  # what the replans are held to; without them, not computed
             worst_world = self.worst_world(problem.simulator, state, problem.trajectory(z), task) \
-                if self.settings.executor.replan else math.inf
+                if self.settings.executor.replans(face) else math.inf
         return Policy(start_s, self.control_period_s, problem.simulator.timestep_s, np.array(torques, dtype=float),
                       gains, np.vstack([state[None], evaluation.states]), worst_world=worst_world,
-                      object_scales=self.object_scales, target=target)
+                      object_scales=self.object_scales, target=target, face=face)
 
     def predict(self, state: np.ndarray, running: Policy, from_s: float, steps: int) -> np.ndarray:
         """The model's state `steps` simulation steps after `state` (at from_s) under the running policy's
@@ -223,8 +223,8 @@ class PushModel:
         if worst_world > running.worst_world:
             return None
         # iLQR's cost only falls, so its outcome is the last kept step's, whose backward pass gave solver.gains
-        return dataclasses.replace(self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem,
-                                               worst_world, running.target), face=running.face)
+        return self.policy(start_s, state, problem.split(outcome.z)[0], solver.gains, problem, worst_world,
+                           running.target, running.face)
 
 
 # per process: the models of the goal that runs, built once (its scene's cube and the last identified one)

@@ -92,7 +92,7 @@ def _policy(settings: Settings, goal: ExecuteGoal, job: Job, request: PushReques
     start = build_problem(knotted.with_overrides({"horizon_s": float(result.knot_time_s[-1])}), request).initial_state
     target = ((float(request.target_position_m[0]), float(request.target_position_m[1])), request.target_yaw_rad)
     return dataclasses.replace(push_model(knotted, goal, scales).policy(job.now_s, start, result.knot_torques_Nm,
-                                                                        target=target), sturdy=result.sturdy, face=face)
+                                                                        target=target, face=face), sturdy=result.sturdy)
 
 
 def _knotted(settings: Settings, control_period_s: float) -> Settings:

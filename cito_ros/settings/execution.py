@@ -130,6 +130,10 @@ class ExecutorSettings:
     plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)
     time_limit_s: float = setting("an execution's wall-clock limit where the goal gives none (s)", positive=True)
 
+    def replans(self, face: int) -> bool:
+        """Whether a push on `face` (side_faces: 0 the near face) is replanned while it runs."""
+        return self.replan and (self.replan_side_pushes or face == 0)
+
     def check(self, path: str) -> None:
         if not self.waypoint_fraction < 1.0:
             raise ValueError(f"{path}.waypoint_fraction must be below 1 (a fraction of the way to the goal; 0: no "
