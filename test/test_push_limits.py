@@ -1,5 +1,7 @@
 """Where a push that holds its height can leave the cube (cito_ros.planner.push_limits): the bound behind the
 near-reach lottery (docs/planner.md: Reach zones)."""
+import json
+
 import numpy as np
 import pytest
 
@@ -59,3 +61,31 @@ def test_the_steady_reach_is_the_scans_bound_and_follows_the_object(tmp_path):
                           PushRequest("vscm", settings.beta, target_position_m=[1.1, 0.0]))
     assert push_limits.face_heights_m(small.scene) == pytest.approx((0.06, 0.075, 0.09))
     assert abs(push_limits.steady_reach_m(small.scene, small.initial_state) - steady) > 0.01
+
+
+def test_a_reach_is_computed_once_per_machine_and_read_back_from_the_users_cache(tmp_path, monkeypatch):
+    """The pull reach's first computation writes it to $XDG_CACHE_HOME/cito_ros/reach.json; a process that has not
+    computed it (here: this one's copy cleared) reads it back without a search. A damaged file is computed past and
+    written anew; a heavier cube is a scene of its own, with an entry of its own."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    searches = []
+    search = push_limits.minimize.least_squares
+    monkeypatch.setattr(push_limits.minimize, "least_squares", lambda *a, **k: searches.append(1) or search(*a, **k))
+    settings = load_settings()
+    scene = build_problem(settings, PushRequest("vscm", settings.beta)).scene
+    path = tmp_path / "cito_ros" / "reach.json"
+
+    def fresh() -> float:
+        searches.clear()
+        monkeypatch.setattr(push_limits, "_REACHES", {})
+        return push_limits.pull_reach_m(scene)
+
+    computed = fresh()
+    assert searches and 0.5 < computed < 1.0 and list(json.loads(path.read_text()).values()) == [computed]
+    assert fresh() == computed and not searches
+    path.write_text("{")
+    assert fresh() == computed and searches and list(json.loads(path.read_text()).values()) == [computed]
+    heavy = build_problem(settings, PushRequest("vscm", settings.beta, object_scales=(1.0, 2.0))).scene
+    searches.clear()
+    push_limits.pull_reach_m(heavy)
+    assert searches and len(json.loads(path.read_text())) == 2

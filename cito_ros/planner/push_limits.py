@@ -22,16 +22,24 @@ towards the arm needs, with the rest of the arm clear of the object (it reaches 
 """
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import itertools
+import json
+import os
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
 
 import mujoco
 import numpy as np
 from mujoco import minimize
 
+from cito_ros.model import scene as scene_module
 from cito_ros.model.scene import PLATE_GEOM, TABLE_TOP_Z_M, Scene
 from cito_ros.model.simulator import FULL_PHYSICS
 from cito_ros.settings import SceneConfig
+from cito_ros.settings.paths import model_path
 
 CONTACTS = ("face", "rim")  # the plate's face along the push; any orientation, the rim leading
 MARGIN_RAD = 0.05            # the inverse kinematics keeps every joint this far inside its range
@@ -182,9 +190,42 @@ def farthest(limits: list[PushLimit], contact: str) -> PushLimit:
     return max(rows, key=lambda row: row.rest_distance_m)
 
 
-# (scene without the object's pose) -> steady reach: the bound depends on the arm, the object's size and the
-# scene's contact parameters, not on where the object stands (its slide there is under a millimetre)
-_STEADY_REACH: dict[SceneConfig, float] = {}
+# (kind, scene without the object's pose) -> reach: a reach depends on the arm, the object's size and the scene's
+# contact parameters, not on where the object stands (its slide there is under a millimetre)
+_REACHES: dict[tuple[str, SceneConfig], float] = {}
+
+
+def _cached(kind: str, scene: Scene, compute: Callable[[], float]) -> float:
+    """compute()'s reach of `kind` for the scene, its object's pose aside: kept in this process and in the user's
+    cache ($XDG_CACHE_HOME or ~/.cache, cito_ros/reach.json), whose entry is named by a hash of the scene's
+    description, MuJoCo's version, the model files and the code that builds the scene and computes the reach, so
+    that a change in any of them computes it again: a planning process's start, and a one-shot cito-plan's refusal,
+    need not pay the seconds they take (builder.warm_up). An unreadable or unwritable file is computed past: the
+    cache only saves time."""
+    config = scene.config.object_pose_aside
+    if (kind, config) in _REACHES:
+        return _REACHES[(kind, config)]
+    digest = hashlib.sha256(f"{kind} {mujoco.__version__} {dataclasses.replace(config, source='')!r}".encode())
+    for path in [*sorted(model_path(config.model).parent.glob("*.xml")), Path(__file__), Path(scene_module.__file__)]:
+        digest.update(path.read_bytes())
+    entry, path = digest.hexdigest(), Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / \
+        "cito_ros" / "reach.json"
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, ValueError):
+        stored = {}
+    reach = stored.get(entry) if isinstance(stored, dict) else None
+    if not isinstance(reach, float):
+        reach, stored = compute(), stored if isinstance(stored, dict) else {}
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            partial = path.with_suffix(f".{os.getpid()}.tmp")
+            partial.write_text(json.dumps({**stored, entry: reach}))
+            os.replace(partial, path)  # whole or not at all for a process that reads it meanwhile
+        except OSError:
+            pass
+    _REACHES[(kind, config)] = reach
+    return reach
 
 
 def steady_reach_margin_m(scene: Scene, initial_state: np.ndarray, target_position_m) -> float:
@@ -192,17 +233,15 @@ def steady_reach_margin_m(scene: Scene, initial_state: np.ndarray, target_positi
     return steady_reach_m(scene, initial_state) - float(np.hypot(*np.asarray(target_position_m)[:2]))
 
 
-def steady_reach_m(scene: Scene, initial_state: np.ndarray, margin_rad: float = MARGIN_RAD) -> float:
+def steady_reach_m(scene: Scene, initial_state: np.ndarray) -> float:
     """The farthest from the arm base (horizontally) a push whose plate holds its height and its face
     along the push can leave the object's centre: the largest, over face_heights_m, of the farthest such
     plate position plus the plate's half thickness and the object's half size, plus the slide of the
     object released there at fastest_push_m_s (simulated from initial_state, the object at rest and the
-    arm clear of it). Cached per scene description, the object's pose aside."""
-    config = scene.config
-    key = config.object_pose_aside
-    if key not in _STEADY_REACH:
+    arm clear of it). Cached (`_cached`)."""
+    def compute() -> float:
         model, data = scene.model, mujoco.MjData(scene.model)
-        low, high = _joint_bounds(scene, margin_rad)
+        low, high = _joint_bounds(scene, MARGIN_RAD)
         site, qadr, dofs = scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
         along = np.array([1.0, 0.0, 0.0])
         jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
@@ -234,26 +273,22 @@ def steady_reach_m(scene: Scene, initial_state: np.ndarray, margin_rad: float = 
                     slide_m(scene, speed, initial_state)
                 reach = max(reach, rest)
         if reach == 0.0:
-            raise ValueError(f"scene {config.name}: the plate cannot hold the object's face at any height")
-        _STEADY_REACH[key] = reach
-    return _STEADY_REACH[key]
+            raise ValueError(f"scene {scene.config.name}: the plate cannot hold the object's face at any height")
+        return reach
+
+    return _cached("steady", scene, compute)
 
 
-# (scene without the object's pose) -> pull reach, as _STEADY_REACH
-_PULL_REACH: dict[SceneConfig, float] = {}
-
-
-def pull_reach_m(scene: Scene, margin_rad: float = MARGIN_RAD) -> float:
+def pull_reach_m(scene: Scene) -> float:
     """The farthest from the arm base (horizontally, along +x) the object's centre can stand with the plate against
     the middle of its far face (the face away from the arm, which a pull presses) and no other part of the arm in
     the object: at each of face_heights_m, the plate's point nearest the arm is pulled outwards along +x (a penalty
     least squares from stretched starts, as steady_reach_m), the object's far face put there, and every other arm
     geom's signed distance from the object (mujoco.mj_geomDistance) held at zero or more; 0.0 where nothing reaches.
-    Cached per scene description, the object's pose aside."""
-    key = scene.config.object_pose_aside
-    if key not in _PULL_REACH:
+    Cached (`_cached`)."""
+    def compute() -> float:
         model, data = scene.model, mujoco.MjData(scene.model)
-        low, high = _joint_bounds(scene, margin_rad)
+        low, high = _joint_bounds(scene, MARGIN_RAD)
         site, qadr, oadr = scene.robot_site_id, scene.arm_qpos_adr, scene.object_qpos_adr
         plate, target = model.geom(PLATE_GEOM).id, scene.object_geom_id
         arm = [g for g in range(model.ngeom) if model.geom_bodyid[g] not in (0, scene.object_body_id) and g != plate]
@@ -283,5 +318,6 @@ def pull_reach_m(scene: Scene, margin_rad: float = MARGIN_RAD) -> float:
                 if np.all(np.abs(out[1:3]) <= 100.0 * POSITION_TOLERANCE_M) and \
                         np.all(out[3:] >= -100.0 * POSITION_TOLERANCE_M):
                     reach = max(reach, 2.0 - float(out[0]) - half)
-        _PULL_REACH[key] = reach
-    return _PULL_REACH[key]
+        return reach
+
+    return _cached("pull", scene, compute)
