@@ -39,7 +39,7 @@ from cito_ros.model import scene as scene_module
 from cito_ros.model.scene import PLATE_GEOM, TABLE_TOP_Z_M, Scene
 from cito_ros.model.simulator import FULL_PHYSICS
 from cito_ros.settings import SceneConfig
-from cito_ros.settings.paths import model_path
+from cito_ros.settings.paths import cache_path, model_path
 
 CONTACTS = ("face", "rim")  # the plate's face along the push; any orientation, the rim leading
 MARGIN_RAD = 0.05            # the inverse kinematics keeps every joint this far inside its range
@@ -208,15 +208,15 @@ def _cached(kind: str, scene: Scene, compute: Callable[[], float]) -> float:
     digest = hashlib.sha256(f"{kind} {mujoco.__version__} {dataclasses.replace(config, source='')!r}".encode())
     for path in [*sorted(model_path(config.model).parent.glob("*.xml")), Path(__file__), Path(scene_module.__file__)]:
         digest.update(path.read_bytes())
-    entry, path = digest.hexdigest(), Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / \
-        "cito_ros" / "reach.json"
+    entry, path = digest.hexdigest(), cache_path("reach.json")
     try:
         stored = json.loads(path.read_text())
     except (OSError, ValueError):
         stored = {}
-    reach = stored.get(entry) if isinstance(stored, dict) else None
+    stored = stored if isinstance(stored, dict) else {}
+    reach = stored.get(entry)
     if not isinstance(reach, float):
-        reach, stored = compute(), stored if isinstance(stored, dict) else {}
+        reach = compute()
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             partial = path.with_suffix(f".{os.getpid()}.tmp")

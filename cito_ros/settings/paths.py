@@ -38,3 +38,8 @@ def model_path(name: str) -> Path:
 
 def config_path(name: str) -> Path:
     return share_dir() / "config" / name
+
+
+def cache_path(name: str) -> Path:
+    """A file in the user's cache for this package ($XDG_CACHE_HOME, else ~/.cache): computed once per machine."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / PACKAGE / name
