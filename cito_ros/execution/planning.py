@@ -10,16 +10,16 @@ import time
 
 import numpy as np
 
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work
+from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, pose_errors
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import push_model, servo_tracking
 from cito_ros.execution.policy import Policy
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import PlanResult, Status
+from cito_ros.planner.results import PlanResult, Status, tolerance_ratio, within_limits
 from cito_ros.planner.side_faces import NEAR, near_normal_rad
-from cito_ros.planner.task import turn_rad
+from cito_ros.planner.task import turn_rad, yaw_of
 from cito_ros.settings import Settings
 
 
@@ -51,8 +51,11 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     """A job's outcome (blocking; in this process or another): a push planned from rest (plan_push from the
     measured arm and cube) with its policy, or one MPC step; a Failure when no push can be planned from there.
     A push with pushes left after it is planned to the goal within executor.direct_iterations (a sturdy plan there
-    takes 3-19), and where that plan is not sturdy, again to executor.waypoint_fraction of the way, made if sturdy:
-    a shorter push lands alike in more worlds (docs/results.md), and the next starts from where it ended. After a
+    takes 3-19), and where that plan is not sturdy, again to executor.waypoint_fraction of the way, made if sturdy
+    and it moves the cube: a shorter push lands alike in more worlds (docs/results.md), and the next starts from
+    where it ended. Where neither is so, the one the model has nearer the goal is made, within the arm's limits
+    first (the plan to a goal at the arm's reach that goes beyond the joints' range and never touches the cube
+    had been made, and the execution ended with no closer push where the waypoint's moved it closer). After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it."""
     if job.kind == "replan":  # in the model the running push was planned in: its knots, its cube
@@ -76,13 +79,36 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         if sequence and not result.sturdy:
             shorter = _plan_to(settings, goal, job, executor.waypoint_fraction, executor.plan_iterations, scales,
                                worlds)
-            if shorter[1].sturdy:
+            if shorter[1].sturdy and _moves(settings, shorter[1]) or \
+                    _predicted(settings, goal, shorter[1]) < _predicted(settings, goal, result):
                 request, result = shorter
     except ValueError as error:
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
     return _policy(settings, goal, job, request, result, scales)
+
+
+def _cube_moved(result: PlanResult) -> tuple[tuple[np.ndarray, float], tuple[np.ndarray, float]]:
+    """Where a plan, executed in the model and held, has the cube at its start and at rest: (x, y), yaw."""
+    motion = result.executed_motion
+    return tuple((motion.object_position_m[i, :2], yaw_of(motion.object_quaternion[i])) for i in (0, -1))
+
+
+def _moves(settings: Settings, result: PlanResult) -> bool:
+    """Whether a plan moves the cube by more than executor.moved_fraction of the task's tolerances (as the
+    executor asks of a next push: a plan sturdy to a waypoint whose tolerances already hold the cube never
+    touches it)."""
+    (start, end) = _cube_moved(result)
+    return tolerance_ratio(*pose_errors(*start, *end), settings.task) > settings.executor.moved_fraction
+
+
+def _predicted(settings: Settings, goal: ExecuteGoal, result: PlanResult) -> tuple[bool, float]:
+    """A plan's standing against the goal in the model, lower better: beyond the arm's limits last, then the
+    tolerance ratio of where it leaves the cube."""
+    metrics, (_, end) = result.metrics, _cube_moved(result)
+    return not within_limits(metrics.max_joint_speed_ratio, metrics.joint_range_excess_rad), \
+        tolerance_ratio(*goal.errors(*end), settings.task)
 
 
 def _policy(settings: Settings, goal: ExecuteGoal, job: Job, request: PushRequest, result: PlanResult,
