@@ -80,6 +80,12 @@ def pose_errors(position_m, yaw_rad: float, other_position_m, other_yaw_rad: flo
         abs(turn_rad(other_yaw_rad, yaw_rad))
 
 
+def moved_beyond(settings: Settings, pose, other_pose) -> bool:
+    """Whether two poses of the cube ((x, y), yaw) lie further apart than executor.moved_fraction of the task's
+    tolerances (the larger of position and yaw): the cube has moved, or a push moves it."""
+    return tolerance_ratio(*pose_errors(*pose, *other_pose), settings.task) > settings.executor.moved_fraction
+
+
 @dataclass(frozen=True)
 class Work:
     """A plan ready to take effect at `effective_s` on the robot's clock, and what it cost."""
@@ -226,10 +232,8 @@ class Executor:
                 Retreat.between(now_s, joints.q, self._home_q, limit, self.settings.executor)
 
     def _moved_since(self, policy: Policy, now_s: float) -> bool:
-        """Whether the cube has left where a push was planned for it: moved since by more than
-        executor.moved_fraction of the task's tolerances (the larger of position and yaw)."""
-        moved = pose_errors(*self.object_pose(now_s), *self._cube_in(policy.reference[0]))
-        return tolerance_ratio(*moved, self.settings.task) > self.settings.executor.moved_fraction
+        """Whether the cube has left where a push was planned for it (moved_beyond)."""
+        return moved_beyond(self.settings, self.object_pose(now_s), self._cube_in(policy.reference[0]))
 
     def _cube_in(self, state: np.ndarray) -> tuple[np.ndarray, float]:
         """The cube's (x, y) and yaw in a state of the model."""
@@ -278,9 +282,7 @@ class Executor:
 
     def object_pose(self, now_s: float) -> tuple[np.ndarray, float]:
         """The cube's (x, y) and yaw as the camera sees it now: the rest window's mean when it is at rest."""
-        if self.cube_at_rest:
-            return self.estimator.resting_pose()
-        return self.estimator.object_pose(now_s)
+        return self.estimator.resting_pose() if self.cube_at_rest else self.estimator.object_pose(now_s)
 
     # ------------------------------------------------------------------ planning
 
@@ -333,17 +335,16 @@ class Executor:
             if outcome is None:
                 return None
             if job.kind == "plan" and self.pushes:
-                # a push that would not bring the cube closer (both errors against their tolerances: a cube
-                # at the place but turned is brought closer by a push that turns it), or would hardly move it
-                # (a plan that never touches a cube already within its waypoint's tolerances is "sturdy" there:
-                # five such pushes ran out the time), is not made, nor left to run out the time
+                # a push that would not bring the cube closer (both errors against their tolerances: a cube at the
+                # place but turned is brought closer by a push that turns it), or would hardly move it (a plan that
+                # never touches a cube within its waypoint's tolerances is "sturdy" there: five such ran out the
+                # time), is not made, nor left to run out the time
                 position, orientation = self.goal.errors(*job.object_pose)
-                cube = self._cube_in(outcome.final_state)
-                predicted = self.goal.errors(*cube)
-                moved = pose_errors(*self._cube_in(outcome.reference[0]), *cube)
+                start, cube = self._cube_in(outcome.reference[0]), self._cube_in(outcome.final_state)
+                predicted, moved = self.goal.errors(*cube), pose_errors(*start, *cube)
                 task = self.settings.task
                 if tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task) or \
-                        tolerance_ratio(*moved, task) <= self.settings.executor.moved_fraction:
+                        not moved_beyond(self.settings, start, cube):
                     self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                         f"{100 * position:.2f} cm and {orientation:.3f} rad from the "
                                                         f"goal, and the best push found from the near face would "

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, pose_errors
+from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, moved_beyond
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import push_model, servo_tracking
 from cito_ros.execution.policy import Policy
@@ -96,11 +96,9 @@ def _cube_moved(result: PlanResult) -> tuple[tuple[np.ndarray, float], tuple[np.
 
 
 def _moves(settings: Settings, result: PlanResult) -> bool:
-    """Whether a plan moves the cube by more than executor.moved_fraction of the task's tolerances (as the
-    executor asks of a next push: a plan sturdy to a waypoint whose tolerances already hold the cube never
-    touches it)."""
-    (start, end) = _cube_moved(result)
-    return tolerance_ratio(*pose_errors(*start, *end), settings.task) > settings.executor.moved_fraction
+    """Whether a plan moves the cube (moved_beyond, as the executor asks of a next push: a plan sturdy to a
+    waypoint whose tolerances already hold the cube never touches it)."""
+    return moved_beyond(settings, *_cube_moved(result))
 
 
 def _predicted(settings: Settings, goal: ExecuteGoal, result: PlanResult) -> tuple[bool, float]:
