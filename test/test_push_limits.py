@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from cito_ros.model import reach_cache
 from cito_ros.planner import push_limits
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.settings import load_settings
@@ -64,28 +65,34 @@ def test_the_steady_reach_is_the_scans_bound_and_follows_the_object(tmp_path):
 
 
 def test_a_reach_is_computed_once_per_machine_and_read_back_from_the_users_cache(tmp_path, monkeypatch):
-    """The pull reach's first computation writes it to $XDG_CACHE_HOME/cito_ros/reach.json; a process that has not
-    computed it (here: this one's copy cleared) reads it back without a search. A damaged file is computed past and
-    written anew; a heavier cube is a scene of its own, with an entry of its own."""
+    """A reach's first computation writes it to $XDG_CACHE_HOME/cito_ros/reach.json; a process that has not
+    computed it (here: this one's copy cleared) reads it back without a search: the push reach, which every
+    request's checks need (a one-shot cito-plan's refusal spent 0.1 s searching it), and the pull reach. A damaged
+    file is computed past and written anew; a heavier cube is a scene of its own, with entries of its own."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(reach_cache, "_REACHES", {})
     searches = []
     search = push_limits.minimize.least_squares
     monkeypatch.setattr(push_limits.minimize, "least_squares", lambda *a, **k: searches.append(1) or search(*a, **k))
     settings = load_settings()
-    scene = build_problem(settings, PushRequest("vscm", settings.beta)).scene
+    scene = build_problem(settings, PushRequest("vscm", settings.beta)).scene  # its checks search the push reach
     path = tmp_path / "cito_ros" / "reach.json"
+    push = scene.push_reach_m()
+    assert searches and 1.0 < push < 1.5 and list(json.loads(path.read_text()).values()) == [push]
 
-    def fresh() -> float:
+    def fresh(reach) -> float:
         searches.clear()
-        monkeypatch.setattr(push_limits, "_REACHES", {})
-        return push_limits.pull_reach_m(scene)
+        monkeypatch.setattr(reach_cache, "_REACHES", {})
+        return reach()
 
-    computed = fresh()
-    assert searches and 0.5 < computed < 1.0 and list(json.loads(path.read_text()).values()) == [computed]
-    assert fresh() == computed and not searches
+    computed = fresh(lambda: push_limits.pull_reach_m(scene))
+    assert searches and 0.5 < computed < 1.0 and list(json.loads(path.read_text()).values()) == [push, computed]
+    assert fresh(lambda: push_limits.pull_reach_m(scene)) == computed and not searches
+    assert fresh(scene.push_reach_m) == push and not searches
     path.write_text("{")
-    assert fresh() == computed and searches and list(json.loads(path.read_text()).values()) == [computed]
+    assert fresh(lambda: push_limits.pull_reach_m(scene)) == computed and searches
+    assert list(json.loads(path.read_text()).values()) == [computed]
     heavy = build_problem(settings, PushRequest("vscm", settings.beta, object_scales=(1.0, 2.0))).scene
     searches.clear()
     push_limits.pull_reach_m(heavy)
-    assert searches and len(json.loads(path.read_text())) == 2
+    assert searches and len(json.loads(path.read_text())) == 3  # the heavy cube's push reach and pull reach

@@ -8,15 +8,21 @@ With --json, one JSON object on stdout: the plan's summary, or {"status": "inval
 """
 from __future__ import annotations
 
-import argparse
-import json
-import sys
+import os
 
-from cito_ros.cli.progress import advance, progress_bar
-from cito_ros.model.contact_models import CONTACT_MODELS
-from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import IterationLog, PlanResult, zone, zone_note
-from cito_ros.settings import load_settings
+# cito-plan renders nothing: with no GL backend asked for, MuJoCo's import skips loading GLFW (70 ms of a one-shot
+# refusal's answer); read by mujoco when it is first imported
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+
+from cito_ros.cli.progress import advance, progress_bar  # noqa: E402
+from cito_ros.model.contact_models import CONTACT_MODELS  # noqa: E402
+from cito_ros.planner.plan import plan_push  # noqa: E402
+from cito_ros.planner.results import IterationLog, PlanResult, zone, zone_note  # noqa: E402
+from cito_ros.settings import load_settings  # noqa: E402
 
 INVALID_REQUEST = "invalid_request"
 

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
 from mujoco import minimize
 
 from cito_ros.model import _native  # noqa: F401  (registers the cito.* engine plugins)
+from cito_ros.model import reach_cache
 from cito_ros.model.contact_models import ContactModel
 from cito_ros.settings import SceneConfig
 from cito_ros.settings.paths import model_path
@@ -339,8 +341,8 @@ class Scene:
     def push_reach_m(self) -> float:
         """How far from the arm base (horizontally) the object's centre can be pushed: the farthest the
         plate centre reaches within the height of the object's faces (at their top, the nearest to the
-        shoulder), plus the plate's radius and the object's half size (cached per model file and object)."""
-        return _push_reach(self.config.model, float(self.object_half_size[0]), self)
+        shoulder), plus the plate's radius and the object's half size (cached: reach_cache)."""
+        return reach_cache.cached("push", self, lambda: _push_reach(self), Path(__file__))
 
     def table_top(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(x, y) lower and upper corners of the table top and its height (m), world frame."""
@@ -365,35 +367,30 @@ class Scene:
         return -(site_x + 2 * w * uv + 2 * np.cross(u, uv))
 
 
-_REACH_CACHE: dict[tuple[str, float], float] = {}
+def _push_reach(scene: Scene) -> float:
+    half_size = float(scene.object_half_size[0])
+    model, data = scene.model, mujoco.MjData(scene.model)
+    height = TABLE_TOP_Z_M + 2 * half_size
+    low, high = scene.joint_range.T
 
+    def residual(x: np.ndarray) -> np.ndarray:
+        out = np.empty((3, x.shape[1]))
+        for column, q in enumerate(x.T):
+            data.qpos[scene.arm_qpos_adr] = q
+            mujoco.mj_kinematics(model, data)
+            plate = data.site_xpos[scene.robot_site_id]
+            out[:, column] = [2.0 - plate[0], 10 * (plate[2] - height), 10 * plate[1]]
+        return out
 
-def _push_reach(model_file: str, half_size: float, scene: Scene) -> float:
-    key = (model_file, half_size)
-    if key not in _REACH_CACHE:
-        model, data = scene.model, mujoco.MjData(scene.model)
-        height = TABLE_TOP_Z_M + 2 * half_size
-        low, high = scene.joint_range.T
-
-        def residual(x: np.ndarray) -> np.ndarray:
-            out = np.empty((3, x.shape[1]))
-            for column, q in enumerate(x.T):
-                data.qpos[scene.arm_qpos_adr] = q
-                mujoco.mj_kinematics(model, data)
-                plate = data.site_xpos[scene.robot_site_id]
-                out[:, column] = [2.0 - plate[0], 10 * (plate[2] - height), 10 * plate[1]]
-            return out
-
-        reach = 0.0
-        # stretched forward with the elbow and wrist bent either way: the farthest is among them
-        for j3 in (0.0, 0.5, -0.5):
-            for j5 in (0.5, -0.5):
-                start = np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
-                q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
-                data.qpos[scene.arm_qpos_adr] = q
-                mujoco.mj_kinematics(model, data)
-                plate = data.site_xpos[scene.robot_site_id]
-                if abs(plate[2] - height) < 5e-3:
-                    reach = max(reach, float(np.hypot(plate[0], plate[1])))
-        _REACH_CACHE[key] = reach + scene.plate_radius_m + half_size
-    return _REACH_CACHE[key]
+    reach = 0.0
+    # stretched forward with the elbow and wrist bent either way: the farthest is among them
+    for j3 in (0.0, 0.5, -0.5):
+        for j5 in (0.5, -0.5):
+            start = np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
+            q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
+            data.qpos[scene.arm_qpos_adr] = q
+            mujoco.mj_kinematics(model, data)
+            plate = data.site_xpos[scene.robot_site_id]
+            if abs(plate[2] - height) < 5e-3:
+                reach = max(reach, float(np.hypot(plate[0], plate[1])))
+    return reach + scene.plate_radius_m + half_size

@@ -106,7 +106,7 @@ def scene_config(settings: Settings, request: PushRequest) -> SceneConfig:
 def warm_up(settings: Settings) -> PlanningProblem:
     """What a planning process pays for once per scene, so that no answer does: the default request's problem of the
     configured scene, its steady push reach (every plan's reach zone: 1.4 s) and its pull reach (a refusal's reason:
-    1.3 s), the reaches computed once per machine and read back after (push_limits._cached)."""
+    1.3 s), the reaches computed once per machine and read back after (reach_cache.cached)."""
     posed = build_problem(settings, PushRequest(settings.node.default_contact_model))
     push_limits.steady_reach_m(posed.scene, posed.initial_state)
     push_limits.pull_reach_m(posed.scene)

@@ -22,29 +22,23 @@ towards the arm needs, with the rest of the arm clear of the object (it reaches 
 """
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import itertools
-import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import mujoco
 import numpy as np
 from mujoco import minimize
 
-from cito_ros.model import scene as scene_module
+from cito_ros.model import reach_cache, scene as scene_module
 from cito_ros.model.scene import PLATE_GEOM, TABLE_TOP_Z_M, Scene
 from cito_ros.model.simulator import FULL_PHYSICS
-from cito_ros.settings import SceneConfig
-from cito_ros.settings.paths import cache_path, model_path
 
 CONTACTS = ("face", "rim")  # the plate's face along the push; any orientation, the rim leading
 MARGIN_RAD = 0.05            # the inverse kinematics keeps every joint this far inside its range
 POSITION_TOLERANCE_M = 1e-3  # an inverse-kinematics solution counts when the plate is this close to its goal
 NORMAL_TOLERANCE = 1e-2      # and (for the face) its normal this close to the push direction
+SOURCES = (Path(__file__), Path(scene_module.__file__))  # the code a reach here hangs on (reach_cache)
 
 
 @dataclass(frozen=True)
@@ -190,44 +184,6 @@ def farthest(limits: list[PushLimit], contact: str) -> PushLimit:
     return max(rows, key=lambda row: row.rest_distance_m)
 
 
-# (kind, scene without the object's pose) -> reach: a reach depends on the arm, the object's size and the scene's
-# contact parameters, not on where the object stands (its slide there is under a millimetre)
-_REACHES: dict[tuple[str, SceneConfig], float] = {}
-
-
-def _cached(kind: str, scene: Scene, compute: Callable[[], float]) -> float:
-    """compute()'s reach of `kind` for the scene, its object's pose aside: kept in this process and in the user's
-    cache ($XDG_CACHE_HOME or ~/.cache, cito_ros/reach.json), whose entry is named by a hash of the scene's
-    description, MuJoCo's version, the model files and the code that builds the scene and computes the reach, so
-    that a change in any of them computes it again: a planning process's start, and a one-shot cito-plan's refusal,
-    need not pay the seconds they take (builder.warm_up). An unreadable or unwritable file is computed past: the
-    cache only saves time."""
-    config = scene.config.object_pose_aside
-    if (kind, config) in _REACHES:
-        return _REACHES[(kind, config)]
-    digest = hashlib.sha256(f"{kind} {mujoco.__version__} {dataclasses.replace(config, source='')!r}".encode())
-    for path in [*sorted(model_path(config.model).parent.glob("*.xml")), Path(__file__), Path(scene_module.__file__)]:
-        digest.update(path.read_bytes())
-    entry, path = digest.hexdigest(), cache_path("reach.json")
-    try:
-        stored = json.loads(path.read_text())
-    except (OSError, ValueError):
-        stored = {}
-    stored = stored if isinstance(stored, dict) else {}
-    reach = stored.get(entry)
-    if not isinstance(reach, float):
-        reach = compute()
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            partial = path.with_suffix(f".{os.getpid()}.tmp")
-            partial.write_text(json.dumps({**stored, entry: reach}))
-            os.replace(partial, path)  # whole or not at all for a process that reads it meanwhile
-        except OSError:
-            pass
-    _REACHES[(kind, config)] = reach
-    return reach
-
-
 def steady_reach_margin_m(scene: Scene, initial_state: np.ndarray, target_position_m) -> float:
     """The steady push reach less the target's horizontal distance from the arm base: positive inside it."""
     return steady_reach_m(scene, initial_state) - float(np.hypot(*np.asarray(target_position_m)[:2]))
@@ -238,7 +194,7 @@ def steady_reach_m(scene: Scene, initial_state: np.ndarray) -> float:
     along the push can leave the object's centre: the largest, over face_heights_m, of the farthest such
     plate position plus the plate's half thickness and the object's half size, plus the slide of the
     object released there at fastest_push_m_s (simulated from initial_state, the object at rest and the
-    arm clear of it). Cached (`_cached`)."""
+    arm clear of it). Cached (reach_cache)."""
     def compute() -> float:
         model, data = scene.model, mujoco.MjData(scene.model)
         low, high = _joint_bounds(scene, MARGIN_RAD)
@@ -276,7 +232,7 @@ def steady_reach_m(scene: Scene, initial_state: np.ndarray) -> float:
             raise ValueError(f"scene {scene.config.name}: the plate cannot hold the object's face at any height")
         return reach
 
-    return _cached("steady", scene, compute)
+    return reach_cache.cached("steady", scene, compute, *SOURCES)
 
 
 def pull_reach_m(scene: Scene) -> float:
@@ -285,7 +241,7 @@ def pull_reach_m(scene: Scene) -> float:
     the object: at each of face_heights_m, the plate's point nearest the arm is pulled outwards along +x (a penalty
     least squares from stretched starts, as steady_reach_m), the object's far face put there, and every other arm
     geom's signed distance from the object (mujoco.mj_geomDistance) held at zero or more; 0.0 where nothing reaches.
-    Cached (`_cached`)."""
+    Cached (reach_cache)."""
     def compute() -> float:
         model, data = scene.model, mujoco.MjData(scene.model)
         low, high = _joint_bounds(scene, MARGIN_RAD)
@@ -320,4 +276,4 @@ def pull_reach_m(scene: Scene) -> float:
                     reach = max(reach, 2.0 - float(out[0]) - half)
         return reach
 
-    return _cached("pull", scene, compute)
+    return reach_cache.cached("pull", scene, compute, *SOURCES)

@@ -5,11 +5,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
 from cito_ros.settings.contact import CONTACT_MODEL_NAMES, ContactModelsSettings, WeightsSettings
 from cito_ros.settings.execution import ExecutorSettings, LimitSettings, TrackingSettings
-from cito_ros.settings.paths import config_path
+from cito_ros.settings.paths import config_path, read_yaml
 from cito_ros.settings.scene import SceneConfig
 from cito_ros.settings.solver import DerivativeSettings, SolverSettings
 from cito_ros.settings.stages import StagesSettings
@@ -146,8 +144,7 @@ class Settings:
 def load_parameters(path: str | Path | None = None) -> dict[str, Any]:
     """The nested `ros__parameters` mapping of a params file (the node's or the wildcard entry)."""
     path = Path(path) if path is not None else config_path(PLANNER_FILE)
-    with open(path, encoding="utf-8") as stream:
-        document = yaml.safe_load(stream)
+    document = read_yaml(path)
     if isinstance(document, Mapping):
         for entry in document.values():
             if isinstance(entry, Mapping) and isinstance(entry.get("ros__parameters"), Mapping):

@@ -6,9 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
-from cito_ros.settings.paths import config_path
+from cito_ros.settings.paths import config_path, read_yaml
 from cito_ros.settings.typed_config import parse, setting
 
 DEFAULT_SCENE = "default"
@@ -73,8 +71,7 @@ class SceneConfig:
             path = config_path("scenes") / f"{name_or_path}.yaml"
         if not path.is_file():
             raise ValueError(f"unknown scene {str(name_or_path)!r}: {path} does not exist")
-        with open(path, encoding="utf-8") as stream:
-            raw = yaml.safe_load(stream) or {}
+        raw = read_yaml(path) or {}
         return cls.from_mapping(path.stem, raw, source=str(name_or_path))
 
     @classmethod
@@ -82,8 +79,7 @@ class SceneConfig:
         """A scene from its description, applied over the default scene's."""
         tree = raw
         if name != DEFAULT_SCENE:
-            with open(config_path("scenes") / f"{DEFAULT_SCENE}.yaml", encoding="utf-8") as stream:
-                tree = _merged(yaml.safe_load(stream), raw)
+            tree = _merged(read_yaml(config_path("scenes") / f"{DEFAULT_SCENE}.yaml"), raw)
         try:
             scene = parse(cls, tree, "")
         except ValueError as error:

@@ -12,12 +12,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import METRIC_NAMES, PlanResult
 from cito_ros.settings import SceneConfig, Settings, load_settings
-from cito_ros.settings.paths import config_path
+from cito_ros.settings.paths import config_path, read_yaml
 
 
 @dataclass(frozen=True)
@@ -32,8 +31,7 @@ class Case:
 
 def load_cases(path: str | Path | None = None) -> dict[str, Case]:
     path = Path(path) if path is not None else config_path("hard_cases.yaml")
-    with open(path, encoding="utf-8") as stream:
-        document = yaml.safe_load(stream)
+    document = read_yaml(path)
     base = document.get("base", {})
     cases = {}
     for name, spec in document.get("cases", {}).items():
