@@ -172,6 +172,19 @@ def test_bench_push_limits_prints_the_steady_reach_and_refuses_a_bad_step():
     assert refused.returncode == 2 and "positive step" in refused.stderr
 
 
+
+def test_bench_refusals_times_a_one_shot_refusal_of_each_kind_and_its_reason():
+    result = run("cito-bench", "refusals", "--n", "1", "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    reasons = {row["request"]: row["message"] for row in report["requests"]}
+    assert "behind the object's pushed face" in reasons["pull back"]
+    assert "turns the object by 1.20 rad" in reasons["turn in place"]
+    assert "beyond the 1.249 m" in reasons["beyond the reach"]
+    assert "off the table" in reasons["off the table"]
+    assert "unknown scene 'no_such_scene'" in reasons["unknown scene"]
+    assert all(len(row["seconds"]) == 1 and row["seconds"][0] > 0 for row in report["requests"])
+
 def test_bench_figures(tmp_path):
     result = run("cito-bench", "figures", "--out", str(tmp_path), timeout=900)
     assert result.returncode == 0, result.stderr

@@ -12,6 +12,7 @@
     cito-bench roughness [--scenes S ...] [--plans] [--json]   how far a push's outcome jumps under tiny changes
     cito-bench push-limits [--heights H ...] [--step M] [--json]   where a push that holds its height can leave the cube
     cito-bench round-trip [--n 20] [--seed S] [--json]   the node's answer time beyond the solve, and its bags
+    cito-bench refusals [--n 10] [--json]         how soon a one-shot cito-plan refuses a goal, its start included
     cito-bench closed-loop [--n 30] [--seed S] [--distribution D] [--ros] [--out DIR]   open and closed loop in
                                                   mismatched worlds (in process; --ros: through the nodes)
 
@@ -178,6 +179,9 @@ def main(argv: list[str] | None = None) -> int:
     trip.add_argument("--n", type=positive_int, default=20, help="seeded short pushes, each as a call and as a goal")
     trip.add_argument("--seed", type=int, default=0)
     trip.add_argument("--json", action="store_true", help="print one JSON object")
+    refusals = commands.add_parser("refusals", help="how soon a one-shot cito-plan refuses a goal, its start included")
+    refusals.add_argument("--n", type=positive_int, default=10, help="fresh processes per refused request")
+    refusals.add_argument("--json", action="store_true", help="print one JSON object")
     closed = commands.add_parser("closed-loop", help="pushes open and closed loop in worlds that are not the model")
     closed.add_argument("--n", type=positive_int, default=30, help="targets goals (each in every world, both ways)")
     closed.add_argument("--seed", type=int, default=0)
@@ -320,6 +324,13 @@ def main(argv: list[str] | None = None) -> int:
         result = round_trip.round_trip_benchmark(args.n, args.seed, progress=lambda done, _: advance(bar, done))
         bar.close()
         print(json.dumps(result) if args.json else round_trip.report_text(result))
+    elif args.command == "refusals":
+        from cito_ros.cli import refusals as refusals_module
+
+        bar = progress_bar(args.n * len(refusals_module.REQUESTS), "refusals", "process")
+        result = refusals_module.refusal_benchmark(args.n, progress=lambda done: advance(bar, done))
+        bar.close()
+        print(json.dumps(result) if args.json else refusals_module.report_text(result))
     elif args.command == "closed-loop":
         from cito_ros.settings import load_settings
         from cito_ros.studies import closed_loop, targets as targets_module
