@@ -45,7 +45,7 @@ def print_rollout(result: dict) -> None:
     print(f"  python       {result['python_rollout_ms']:8.3f} ms   (native is {result['speedup_native_over_python']:.1f}x faster)")
     print(f"  plain MuJoCo {result['plain_mujoco_rollout_ms']:8.3f} ms   (the same scene and motion without the plugins, "
           f"joints within {result['plain_mujoco_joint_drift_rad']:.1e} rad; native is {result['native_over_plain_mujoco']:.2f}x "
-          f"its time)")
+          f"its time, the median of paired runs)")
     print(f"  batched      {result['batched_rollouts_per_s']:8.0f} rollouts/s on {result['batch_threads']} threads")
 
 

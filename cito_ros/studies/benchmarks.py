@@ -34,6 +34,25 @@ def median_ms(function: Callable[[], object], repeats: int, warmup: int = 3) -> 
     return 1e3 * statistics.median(samples)
 
 
+def paired_ms(first: Callable[[], object], second: Callable[[], object], repeats: int,
+              warmup: int = 3) -> tuple[float, float, float]:
+    """The median times (ms) of two functions timed in turn, back to back, the first of each pair alternating, and
+    the median of their paired ratios (first / second): where the machine's speed drifts over a run (a shared
+    2-core machine's does, by up to 1.5 times within a session), it moves both sides of a pair alike, and
+    timing one function's repeats after the other's does not."""
+    for _ in range(warmup):
+        first()
+        second()
+    times: tuple[list[float], list[float]] = ([], [])
+    for repeat in range(repeats):
+        for side in ((0, 1) if repeat % 2 == 0 else (1, 0)):
+            start = time.perf_counter()
+            (first, second)[side]()
+            times[side].append(time.perf_counter() - start)
+    ratios = [a / b for a, b in zip(*times, strict=True)]
+    return 1e3 * statistics.median(times[0]), 1e3 * statistics.median(times[1]), statistics.median(ratios)
+
+
 def benchmark_torques(simulator: Simulator, seed: int = 0) -> np.ndarray:
     """A fixed pseudo-random torque sequence at 20 % of the motor limits: the arm moves."""
     rng = np.random.default_rng(seed)
@@ -41,7 +60,8 @@ def benchmark_torques(simulator: Simulator, seed: int = 0) -> np.ndarray:
 
 
 def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> dict:
-    """Native vs Python-oracle rollout of the default horizon (VSCM, beta from config, k = k_max)."""
+    """Native vs Python-oracle rollout of the default horizon (VSCM, beta from config, k = k_max), and native vs
+    plain MuJoCo stepping the same scene through the same motion, timed in pairs (paired_ms)."""
     settings = load_settings()
     posed = build_problem(settings, PushRequest("vscm"))
     scene, state, model = posed.scene, posed.initial_state, posed.scene.contact_model
@@ -51,7 +71,6 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
     stiffness = np.full(simulator.n_knots, model.stiffness_max)
     controls = simulator.step_controls(simulator.knot_controls(torques, stiffness))
 
-    native_ms = median_ms(lambda: simulator.rollout_batch(state[None], controls[None]), repeats)
     decoded_ms = median_ms(lambda: simulator.rollout(state, torques, stiffness), repeats)
     python_ms = median_ms(lambda: oracle.rollout(simulator, oracle_scene, state, torques, stiffness),
                           max(5, repeats // 20), warmup=1)
@@ -63,7 +82,9 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
     plain_controls = np.zeros((simulator.n_steps, oracle_scene.model.nu))
     plain_controls[:, oracle_scene.motor_ids] = sensed[0][:, scene.sensors.torque]
     plain_controls[:, oracle_scene.contact_actuator_id] = sensed[0][:, scene.sensors.gamma][:, 0]
-    plain_ms = median_ms(lambda: plain.rollout_batch(state[None], plain_controls[None]), repeats)
+    native_ms, plain_ms, native_over_plain = paired_ms(
+        lambda: simulator.rollout_batch(state[None], controls[None]),
+        lambda: plain.rollout_batch(state[None], plain_controls[None]), repeats)
     plain_states, _, _ = plain.rollout_batch(state[None], plain_controls[None])
     arm = oracle_scene.state_qpos_adr + oracle_scene.arm_qpos_adr
     plain_drift_rad = float(np.max(np.abs(plain_states[0][:, arm] - native_states[0][:, arm])))
@@ -81,7 +102,7 @@ def rollout_benchmark(repeats: int = 200, batch: int = 64, nthread: int = 2) -> 
         "speedup_native_over_python": python_ms / native_ms,
         "plain_mujoco_rollout_ms": plain_ms,
         "plain_mujoco_joint_drift_rad": plain_drift_rad,
-        "native_over_plain_mujoco": native_ms / plain_ms,
+        "native_over_plain_mujoco": native_over_plain,  # the median of paired ratios (paired_ms)
         "batched_rollouts_per_s": batch / (batch_ms / 1e3),
         "batch_threads": nthread,
         "step_us": 1e3 * native_ms / simulator.n_steps,
