@@ -38,8 +38,8 @@ def refusal_benchmark(n: int, progress: Callable[[int], None] | None = None) -> 
             answer = subprocess.run(command + arguments, capture_output=True, text=True, check=False)
             seconds.append(time.perf_counter() - began)
             try:
-                message = json.loads(answer.stdout)["message"]
-                refused = answer.returncode == 2 and json.loads(answer.stdout)["status"] == "invalid_request"
+                printed = json.loads(answer.stdout)
+                message, refused = printed["message"], answer.returncode == 2 and printed["status"] == "invalid_request"
             except (ValueError, KeyError):
                 refused = False
             if not refused:
