@@ -50,6 +50,7 @@ from cito_ros.model.scene import ARM_JOINTS
 from cito_ros.planner.builder import warm_up
 from cito_ros.ros import messages as ros_messages, parameters as ros_parameters
 from cito_ros.ros.bag import TopicQos
+from cito_ros.ros.goal_slot import GoalSlot
 from cito_ros.ros.process import LoopNode, run
 from cito_ros.ros.recorder import Recorder, Recording
 
@@ -91,9 +92,6 @@ class ExecutorNode(Node):
                                     QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         control.create_subscription(PoseStamped, "/object/pose", self._on_pose, qos)
         control.create_timer(0.02, self._watchdog)  # when the joint states stop
-        self.action = ActionServer(self, ExecutePush, NAME, execute_callback=self._on_execute,
-                                   goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                                   callback_group=ReentrantCallbackGroup())
         self.recorder = Recorder(on_error=lambda message: self.get_logger().error(message))
         # the plans and replans run in a process of their own (spawned: no DDS state is forked), so that their
         # Python never holds up the control steps, which run on every joint state
@@ -105,13 +103,18 @@ class ExecutorNode(Node):
         self._planner.submit(warm_up, self.settings).add_done_callback(lambda _: None)
         warm_up(self.settings)  # and here: an execution's model is made here too (the push reach, once)
         self.stopping = threading.Event()
-        self._busy = threading.Lock()
+        self._slot = GoalSlot()
         self._executor: Executor | None = None   # the running execution's, or the last one's (holding the arm)
         self._bag: Recording | None = None
         self._joints: JointReading | None = None
         self._joints_arrival = -math.inf
         self._poses: list[tuple[PoseReading, float]] = []  # the latest few (with their arrival), for a new execution
         self._executions = 0
+        # after the warm-up: a client that finds the action finds the node ready (a goal sent to a node still
+        # warming up waited seconds for its response)
+        self.action = ActionServer(self, ExecutePush, NAME, execute_callback=self._on_execute,
+                                   goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
+                                   callback_group=ReentrantCallbackGroup())
         self.get_logger().info(f"ready: action {NAME}, bags in {self.bag_directory}")
         # what is built by now lives as long as the node: out of the collector's way, whose full collections of it
         # held every thread here, the control steps too, for up to 38 ms
@@ -173,17 +176,19 @@ class ExecutorNode(Node):
     # ------------------------------------------------------------------ the action
 
     def _on_goal(self, goal: ExecutePush.Goal) -> GoalResponse:
-        if self.stopping.is_set() or not self._busy.acquire(blocking=False):
+        if self.stopping.is_set() or not self._slot.accept():
             self.get_logger().warning("execute_push goal rejected: " + (
                 "the node is shutting down" if self.stopping.is_set() else "an execution is running"))
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
     def _on_execute(self, goal_handle) -> ExecutePush.Result:
+        if not self._slot.begin():
+            return self._refuse(goal_handle, Result.STATUS_BUSY, "an execution is running")
         try:
             return self._execute(goal_handle)
         finally:
-            self._busy.release()
+            self._slot.end()
 
     def _execute(self, goal_handle) -> ExecutePush.Result:
         request, now = goal_handle.request, time.time()
@@ -300,7 +305,7 @@ class ExecutorNode(Node):
         """Cancel a running execution (the arm held), wait (bounded) until it has ended, and for its bag."""
         self.stopping.set()
         deadline = time.monotonic() + timeout_s
-        while self._busy.locked() and time.monotonic() < deadline:
+        while self._slot.running and time.monotonic() < deadline:
             time.sleep(0.02)
         self._planner.shutdown(wait=False, cancel_futures=True)
         self.recorder.drain(60.0)

@@ -56,6 +56,7 @@ from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import IterationLog
 from cito_ros.ros import messages as ros_messages, parameters as ros_parameters
 from cito_ros.ros.bag import TopicQos
+from cito_ros.ros.goal_slot import GoalSlot
 from cito_ros.ros.markers import SceneMarkers, joint_states
 from cito_ros.ros.process import run
 from cito_ros.ros.recorder import Recorder, Recording
@@ -63,6 +64,7 @@ from cito_ros.ros.recorder import Recorder, Recording
 NAME = "/cito/plan_push"  # the action's and the service's
 STEP_DEPTH = 1000  # a plan's per-step messages (321 at the default horizon) fit in one history
 DRAIN_S = 60.0     # at shutdown, the longest the node waits for its bags to be finished
+BUSY = "busy: another plan is being computed"
 ANSWER_WAIT_S = 1.0  # the recorder waits this long at most for an answer to be handed to rclpy
 Status = PlanPush.Response
 
@@ -130,7 +132,7 @@ class PlannerNode(Node):
                                    callback_group=group)
         self.stopping = threading.Event()
         self._cancel = threading.Event()  # the running plan's
-        self._busy = threading.Lock()
+        self._slot = GoalSlot()
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="cito_solver")
         self._request_ids = itertools.count(1)
         self.get_logger().info(f"ready: action and service {NAME}, default contact model "
@@ -148,24 +150,26 @@ class PlannerNode(Node):
     # ------------------------------------------------------------------ service and action
 
     def _on_plan_push(self, request: PlanPush.Request, response: PlanPush.Response) -> PlanPush.Response:
-        if not self._busy.acquire(blocking=False):
-            return self._refuse(Status.STATUS_BUSY, "busy: another plan is being computed; call again when it "
-                                                    "has finished").fill(response)
+        if not self._slot.take():
+            return self._refuse(Status.STATUS_BUSY, BUSY + "; call again when it has finished").fill(response)
         try:
             return self._run(request, None).fill(response)
         finally:
-            self._busy.release()
+            self._slot.end()
 
     def _on_goal(self, goal: PlanPushAction.Goal) -> GoalResponse:
         # the goal holds the worker from acceptance until its execute callback ends
-        if self.stopping.is_set() or not self._busy.acquire(blocking=False):
+        if self.stopping.is_set() or not self._slot.accept():
             self.get_logger().warning("plan_push goal rejected: " + (
                 "the node is shutting down" if self.stopping.is_set() else
-                "busy: another plan is being computed; send the goal again when it has finished"))
+                BUSY + "; send the goal again when it has finished"))
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
     def _on_execute(self, goal_handle) -> PlanPushAction.Result:
+        if not self._slot.begin():
+            goal_handle.abort()
+            return self._refuse(Status.STATUS_BUSY, BUSY).fill(PlanPushAction.Result())
         try:
             best = {True: math.nan, False: math.nan}  # best position error with / without the virtual force
 
@@ -189,14 +193,14 @@ class PlannerNode(Node):
                 goal_handle.abort()
             return answer.fill(PlanPushAction.Result())
         finally:
-            self._busy.release()
+            self._slot.end()
 
     def _refuse(self, status: int, message: str, bag_path: str = "") -> Answer:
         self.get_logger().warning(message)
         return Answer(status, message, bag_path)
 
     def _run(self, request, feedback: Callable[[IterationLog], None] | None) -> Answer:
-        """Validate a request or goal and plan it on the worker thread (the caller holds _busy)."""
+        """Validate a request or goal and plan it on the worker thread (the caller holds the slot)."""
         if self.stopping.is_set():
             return self._refuse(Status.STATUS_CANCELLED, "the node is shutting down")
         settings = self.settings
@@ -315,7 +319,7 @@ class PlannerNode(Node):
         self._cancel.set()
         self._worker.shutdown(wait=False, cancel_futures=True)
         deadline = time.monotonic() + timeout_s
-        while self._busy.locked() and time.monotonic() < deadline:
+        while self._slot.running and time.monotonic() < deadline:
             time.sleep(0.02)
         if not self.recorder.drain(DRAIN_S):
             self.get_logger().error(f"bags still being written after {DRAIN_S:g} s; they stay .partial")

@@ -33,6 +33,7 @@ from cito_ros.planner.task import yaw_of
 BIN = Path(sys.executable).parent
 REST_WAIT_S = 3.0   # after an execution, the longest wait for the true cube to come to rest
 RESULT_TIMEOUT_S = 120.0
+GOAL_RESPONSE_S = 10.0  # longer than the node's lapse of an accepted goal's claim (goal_slot.ACCEPTED_LAPSE_S)
 
 
 def spawn(program: str, domain: int, *parameters: str, quiet: bool = False) -> subprocess.Popen:
@@ -128,16 +129,24 @@ class Operator:
             self.executor.spin_once(timeout_sec=0.02)
         return len(self.joints) >= 10 and bool(self.true_poses)
 
-    def send(self, goal: ExecuteGoal, z_m: float = 0.1):
-        """The goal's handle (accepted or not)."""
+    def send(self, goal: ExecuteGoal, z_m: float = 0.1, tries: int = 3):
+        """The goal's handle (accepted or not). A goal not answered within GOAL_RESPONSE_S is sent again: Fast DDS
+        drops a response whose reader it has not matched within 100 ms (this client new on a busy machine), and
+        the node lets that goal's claim lapse (cito_ros.ros.goal_slot)."""
         message = ExecutePush.Goal(contact_model=goal.contact_model, scene=goal.scene or "",
                                    time_limit_s=goal.time_limit_s)
         message.target_pose.position.x, message.target_pose.position.y = goal.target_position_m
         message.target_pose.position.z = z_m
         yaw = goal.target_yaw_rad
         message.target_pose.orientation.z, message.target_pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
-        return self.wait(self.action.send_goal_async(message, feedback_callback=lambda m: self.feedback.append(
-            m.feedback)), 30.0)
+        for _ in range(tries):
+            answer = self.action.send_goal_async(message, feedback_callback=lambda m: self.feedback.append(m.feedback))
+            deadline = time.monotonic() + GOAL_RESPONSE_S
+            while not answer.done() and time.monotonic() < deadline:
+                self.executor.spin_once(timeout_sec=0.02)
+            if answer.done():
+                return answer.result()
+        raise TimeoutError(f"the executor node answered none of {tries} goals, each waited for {GOAL_RESPONSE_S:g} s")
 
     def start(self, goal: ExecuteGoal, tries: int = 10):
         """The handle of an execution of `goal` that has begun (its first feedback arrived), or of one that ended
