@@ -15,7 +15,23 @@ from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.model.simulator import Simulator
 from cito_ros.settings import load_settings
 
-from node_harness import Client, request, start_node, wait_for_bag, wait_for_states
+import node_harness
+from node_harness import Client, logs_written_since, request, start_node, wait_for_bag, wait_for_states
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """A failing test's report shows the end of what every node and robot said while it ran."""
+    report = (yield).get_result()
+    if report.when == "call" and report.failed:
+        for log in logs_written_since(call.start):
+            lines = log.read_text(errors="replace").splitlines()
+            report.sections.append((f"{log.name}, its last {min(len(lines), 60)} lines", "\n".join(lines[-60:])))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def log_directory(tmp_path_factory):
+    node_harness.LOG_DIRECTORY = tmp_path_factory.mktemp("logs")
 
 
 @pytest.fixture(scope="session")

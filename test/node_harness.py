@@ -4,6 +4,7 @@ over Fast DDS on an isolated domain (localhost only), the plan requests, and bot
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 import os
 import subprocess
@@ -42,6 +43,8 @@ LATCHED = {"/cito/joint_trajectory", "/cito/object_path", "/cito/plan_result"}
 HORIZON_STEPS = {round(h / load_settings().scene.timestep_s) for h in load_settings().round_horizons_s}
 
 
+LOG_DIRECTORY = Path()  # the session's, under pytest's temporary directory (conftest.log_directory)
+_LOG_NUMBERS = itertools.count()
 HOLD_STEPS = round(load_settings().tracking.hold_s / load_settings().scene.timestep_s)
 
 
@@ -53,9 +56,20 @@ def steps(response) -> int:
     return count
 
 
-def start_node(domain: int, bag_directory: Path, *parameters: str) -> subprocess.Popen:
+def launch(program: str, domain: int, *parameters: str, log: Path | None = None) -> subprocess.Popen:
+    """spawn() with the program's output in `log`, or in a new file of LOG_DIRECTORY: a failing test shows the
+    output written while it ran (conftest.pytest_runtest_makereport)."""
+    return spawn(program, domain, *parameters, log=log or LOG_DIRECTORY / f"{program}.{next(_LOG_NUMBERS)}.log")
+
+
+def logs_written_since(epoch_s: float) -> list[Path]:
+    return sorted((p for p in LOG_DIRECTORY.glob("*.log") if p.stat().st_mtime >= epoch_s),
+                  key=lambda p: p.stat().st_mtime)
+
+
+def start_node(domain: int, bag_directory: Path, *parameters: str, log: Path | None = None) -> subprocess.Popen:
     """A planner node on `domain`, with -p parameters after its bag directory."""
-    return spawn("cito-planner-node", domain, f"node.bag_directory:={bag_directory}", *parameters)
+    return launch("cito-planner-node", domain, f"node.bag_directory:={bag_directory}", *parameters, log=log)
 
 
 @contextlib.contextmanager

@@ -189,6 +189,8 @@ def test_a_parameter_change_applies_to_the_next_plan_and_bad_values_are_refused(
     ("node.default_contact_model:=rigid", "must be one of"),
 ])
 def test_a_bad_parameter_stops_the_node_with_its_name(tmp_path, override, message):
-    process = start_node(201 + os.getpid() % 30, tmp_path, override)  # fails before it joins the graph
-    output, _ = process.communicate(timeout=60)
+    log = tmp_path / "node.log"
+    process = start_node(201 + os.getpid() % 30, tmp_path, override, log=log)  # fails before it joins the graph
+    process.wait(timeout=60)
+    output = log.read_text()
     assert process.returncode == 2 and message in output, output

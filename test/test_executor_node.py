@@ -14,10 +14,10 @@ from cito_msgs.action import ExecutePush
 
 from cito_ros.cli.closed_loop_ros import closed_loop_episode
 from cito_ros.execution.executor import ExecuteGoal
-from cito_ros.ros.sim_session import Operator, spawn, stop
+from cito_ros.ros.sim_session import Operator, stop
 from cito_ros.studies import closed_loop, targets
 
-from node_harness import read_with_mcap, read_with_rosbags, wait_for_bag
+from node_harness import launch, read_with_mcap, read_with_rosbags, wait_for_bag
 
 Result = ExecutePush.Result
 GOAL = ExecuteGoal((1.09, 0.03), 0.0, "vscm")  # 10 cm from q0(beta = 7), inside the steady push reach
@@ -30,9 +30,9 @@ GOAL = ExecuteGoal((1.09, 0.03), 0.0, "vscm")  # 10 cm from q0(beta = 7), inside
 def test_stale_measurements_stop_the_execution_safely(tmp_path):
     """The robot goes silent mid-execution (its driver killed): the executor ends with its status, holding."""
     domain = 191 + os.getpid() % 20
-    sim = spawn("cito-sim-robot", domain, "beta:=7.0")
+    sim = launch("cito-sim-robot", domain, "beta:=7.0")
     # 0.3 s, not the default 0.1 s: the start state must be fresh when the goal arrives, on a busy 2-core machine
-    node = spawn("cito-executor-node", domain, f"node.bag_directory:={tmp_path}", "executor.stale_after_s:=0.3")
+    node = launch("cito-executor-node", domain, f"node.bag_directory:={tmp_path}", "executor.stale_after_s:=0.3")
     operator = Operator(domain)
     try:
         assert operator.wait_for_robot(), "the simulated robot or the executor node did not come up"
@@ -64,7 +64,7 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
     opened = closed_loop.episode(goal, world, "open_loop", "vscm", settings)
     assert not opened["success"] and opened["place"] in ("short", "past", "beside", "turned"), opened
     domain = 171 + os.getpid() % 20
-    node = spawn("cito-executor-node", domain, f"node.bag_directory:={tmp_path}")
+    node = launch("cito-executor-node", domain, f"node.bag_directory:={tmp_path}")
     operator = Operator(domain)
     try:
         closed = closed_loop_episode(operator, domain, goal, world, "vscm", settings, 0.0, scenes["vscm"])
@@ -86,11 +86,11 @@ def robot(tmp_path_factory):
     the executor node, and an operator."""
     domain = 211 + os.getpid() % 20  # Fast DDS takes domains up to 232
     bags = tmp_path_factory.mktemp("execution_bags")
-    sim = spawn("cito-sim-robot", domain, "beta:=7.0", "offset_y_m:=0.03", "pose_noise_m:=0.001", "latency_s:=0.03")
+    sim = launch("cito-sim-robot", domain, "beta:=7.0", "offset_y_m:=0.03", "pose_noise_m:=0.001", "latency_s:=0.03")
     # measurements count as stale only after 2 s here: on this 2-core machine, with the planner, the robot and
     # this test all busy, the node has gone 0.5 s without a cube pose (2 of 3 runs at 437c323); these tests are
     # about rejection, cancel and the bag, the stale test above is about staleness
-    node = spawn("cito-executor-node", domain, f"node.bag_directory:={bags}", "executor.stale_after_s:=2.0")
+    node = launch("cito-executor-node", domain, f"node.bag_directory:={bags}", "executor.stale_after_s:=2.0")
     operator = Operator(domain)
     try:
         assert operator.wait_for_robot(), "the simulated robot or the executor node did not come up"

@@ -29,7 +29,7 @@ def ros_records(goals: list[Goal], model: str, settings: Settings, bag_directory
     """Every goal in every world (closed_loop.WORLDS), open loop in process and closed loop through the nodes."""
     domain = random.randint(101, 180)
     scene = build_problem(settings, PushRequest(model, start_q=start_configuration(settings.beta))).scene
-    node = spawn("cito-executor-node", domain, f"node.bag_directory:={bag_directory.resolve()}", quiet=True)
+    node = spawn("cito-executor-node", domain, f"node.bag_directory:={bag_directory.resolve()}")
     operator = Operator(domain)
     records = []
     try:
@@ -52,7 +52,7 @@ def closed_loop_episode(operator: Operator, domain: int, goal: Goal, world, mode
     """One goal closed loop in one world: a cito-sim-robot with the world's differences beside the running executor
     node, the goal sent from this process, judged on the simulator's true cube at rest (the bench's record)."""
     mismatch = closed_loop.world_for(world, goal)
-    sim = spawn("cito-sim-robot", domain, *robot_parameters(mismatch, goal.beta, goal.index), quiet=True)
+    sim = spawn("cito-sim-robot", domain, *robot_parameters(mismatch, goal.beta, goal.index))
     try:
         if not operator.wait_for_robot():
             raise RuntimeError("the simulated robot or the executor node did not come up")

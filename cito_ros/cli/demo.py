@@ -95,8 +95,8 @@ def _execute(args) -> int:
     open_world = SimulatedWorld(settings, world, start_configuration(settings.beta))
     opened = run_open_loop(settings, goal, open_world, (tuple(told.position_m), told.yaw_rad))
     domain = int(os.environ["ROS_DOMAIN_ID"])
-    sim = spawn("cito-sim-robot", domain, *robot_parameters(world, settings.beta, 0), quiet=True)
-    node = spawn("cito-executor-node", domain, f"node.bag_directory:={args.bag_directory.resolve()}", quiet=True)
+    sim = spawn("cito-sim-robot", domain, *robot_parameters(world, settings.beta, 0))
+    node = spawn("cito-executor-node", domain, f"node.bag_directory:={args.bag_directory.resolve()}")
     operator = Operator(domain)
     try:
         if not operator.wait_for_robot():

@@ -36,13 +36,15 @@ RESULT_TIMEOUT_S = 120.0
 GOAL_RESPONSE_S = 10.0  # longer than the node's lapse of an accepted goal's claim (goal_slot.ACCEPTED_LAPSE_S)
 
 
-def spawn(program: str, domain: int, *parameters: str, quiet: bool = False) -> subprocess.Popen:
-    """One of this package's programs on `domain` of this host, with -p parameters (its output piped, or
-    dropped when quiet)."""
+def spawn(program: str, domain: int, *parameters: str, log: Path | None = None) -> subprocess.Popen:
+    """One of this package's programs on `domain` of this host, with -p parameters, its output appended to `log`
+    (or dropped). Never a pipe: a node that outlives its reader would block once the pipe's 64 kB were full."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    return subprocess.Popen([str(BIN / program), "--ros-args", *(a for p in parameters for a in ("-p", p))], env=env,
-                            stdout=subprocess.DEVNULL if quiet else subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    command = [str(BIN / program), "--ros-args", *(a for p in parameters for a in ("-p", p))]
+    if log is None:
+        return subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    with open(log, "ab") as output:  # the child has its own copy of the descriptor
+        return subprocess.Popen(command, env=env, stdout=output, stderr=subprocess.STDOUT)
 
 
 def stop(process: subprocess.Popen) -> None:
