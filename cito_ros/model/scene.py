@@ -367,6 +367,13 @@ class Scene:
         return -(site_x + 2 * w * uv + 2 * np.cross(u, uv))
 
 
+def stretched_starts(low: np.ndarray, high: np.ndarray, wrists_rad=(0.5, -0.5, 1.2)) -> list[np.ndarray]:
+    """The arm stretched forward with the elbow and the wrist bent either way, within [low, high]: the starts of
+    the reach searches' inverse kinematics."""
+    return [np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
+            for j3 in (0.0, 0.5, -0.5) for j5 in wrists_rad]
+
+
 def _push_reach(scene: Scene) -> float:
     half_size = float(scene.object_half_size[0])
     model, data = scene.model, mujoco.MjData(scene.model)
@@ -383,14 +390,11 @@ def _push_reach(scene: Scene) -> float:
         return out
 
     reach = 0.0
-    # stretched forward with the elbow and wrist bent either way: the farthest is among them
-    for j3 in (0.0, 0.5, -0.5):
-        for j5 in (0.5, -0.5):
-            start = np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
-            q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
-            data.qpos[scene.arm_qpos_adr] = q
-            mujoco.mj_kinematics(model, data)
-            plate = data.site_xpos[scene.robot_site_id]
-            if abs(plate[2] - height) < 5e-3:
-                reach = max(reach, float(np.hypot(plate[0], plate[1])))
+    for start in stretched_starts(low, high, wrists_rad=(0.5, -0.5)):  # the farthest is among them
+        q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
+        data.qpos[scene.arm_qpos_adr] = q
+        mujoco.mj_kinematics(model, data)
+        plate = data.site_xpos[scene.robot_site_id]
+        if abs(plate[2] - height) < 5e-3:
+            reach = max(reach, float(np.hypot(plate[0], plate[1])))
     return reach + scene.plate_radius_m + half_size

@@ -31,7 +31,7 @@ import numpy as np
 from mujoco import minimize
 
 from cito_ros.model import reach_cache, scene as scene_module
-from cito_ros.model.scene import PLATE_GEOM, TABLE_TOP_Z_M, Scene
+from cito_ros.model.scene import PLATE_GEOM, TABLE_TOP_Z_M, Scene, stretched_starts
 from cito_ros.model.simulator import FULL_PHYSICS
 
 CONTACTS = ("face", "rim")  # the plate's face along the push; any orientation, the rim leading
@@ -110,12 +110,6 @@ def _joint_bounds(scene: Scene, margin_rad: float) -> tuple[np.ndarray, np.ndarr
     return scene.joint_range[:, 0] + margin_rad, scene.joint_range[:, 1] - margin_rad
 
 
-def _stretched_starts(low: np.ndarray, high: np.ndarray) -> list[np.ndarray]:
-    """The arm stretched forward with the elbow and wrist bent either way: inverse-kinematics starts."""
-    return [np.clip(np.array([0.0, 0.3, 0.0, j3, 0.0, j5, 0.0]), low, high)
-            for j3 in (0.0, 0.5, -0.5) for j5 in (0.5, -0.5, 1.2)]
-
-
 def push_limits(scene: Scene, initial_state: np.ndarray, plate_heights_m: tuple[float, ...],
                 start_m: float = 0.95, step_m: float = 0.005, margin_rad: float = MARGIN_RAD) -> list[PushLimit]:
     """Every kind of contact at every plate height, along the world +x push line through the arm base,
@@ -130,7 +124,7 @@ def push_limits(scene: Scene, initial_state: np.ndarray, plate_heights_m: tuple[
     site, qadr, dofs = scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
     along = np.array([1.0, 0.0, 0.0])
     half = float(scene.object_half_size[0])
-    stretched = _stretched_starts(low, high)
+    stretched = stretched_starts(low, high)
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
     slides: dict[float, float] = {}
     limits = []
@@ -214,7 +208,7 @@ def steady_reach_m(scene: Scene, initial_state: np.ndarray) -> float:
                                            10.0 * (data.site_xmat[site][2::3] - along)]
                 return out
 
-            for start in _stretched_starts(low, high):
+            for start in stretched_starts(low, high):
                 q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
                 data.qpos[qadr] = q
                 mujoco.mj_kinematics(model, data)
@@ -268,7 +262,7 @@ def pull_reach_m(scene: Scene) -> float:
                                            100.0 * np.array(inside)]
                 return out
 
-            for start in _stretched_starts(low, high):
+            for start in stretched_starts(low, high):
                 q, _ = minimize.least_squares(start, residual, (low, high), verbose=0, max_iter=200)
                 out = residual(q[:, None])[:, 0]
                 if np.all(np.abs(out[1:3]) <= 100.0 * POSITION_TOLERANCE_M) and \
