@@ -4,12 +4,14 @@ import re
 
 import numpy as np
 import pytest
+from cito_msgs.srv import PlanPush
 
 from cito_ros.planner import push_limits, side_faces
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.stages import physical_twin
+from cito_ros.ros.messages import response_status
 
 
 def posed(settings, target, yaw=0.0, object_pose=None):
@@ -68,7 +70,7 @@ def test_a_pull_is_refused_with_the_reason_the_far_face_beyond_the_plate_or_not_
 
 def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_the_near_faces_follow(settings):
     beside = PushRequest("vscm", 5.0, None, (0.99, 0.12), 0.0)
-    assert side_start(settings, beside).face == 1
+    assert side_start(settings, beside).face == 1 and side_start(settings, beside).reaches
     # the cube 11 cm further out: its side faces are beyond the tilted plate, and only the near face is tried
     out = PushRequest("vscm", 5.0, None, (1.10, 0.12), 0.0, None, ((1.10, 0.0), 0.0))
     problem = build_problem(settings, out)
@@ -76,11 +78,26 @@ def test_the_side_starts_come_first_where_the_plate_reaches_the_side_face_and_th
                                           settings.stages.scripted.side_faces, settings.stages.scripted.joint_margin_rad)
     assert short_m > settings.stages.scripted.side_faces.reach_tolerance_m
     assert tilt == settings.stages.scripted.side_faces.tilts_rad[-1]
-    assert side_start(settings, out) is None
+    start = side_start(settings, out)
+    assert start.face == 1 and not start.reaches and start.short_m == pytest.approx(short_m)
     # the other side face, where `faces` has it
     other = PushRequest("vscm", 5.0, None, (0.99, -0.12), 0.0)
     assert side_start(settings, other).face == 3
     assert side_start(settings.with_overrides({"stages.scripted.side_faces.faces": [1]}), other) is None
+
+
+def test_an_answer_that_misses_a_goal_beside_the_cube_says_the_side_face_is_beyond_the_plate(settings):
+    """The cube 1.10 m out, the goal 12 cm beside it: the side face's contact is 11 cm further out than the plate
+    reaches tilted, the near face's pushes cannot move the cube sideways, and the answer says so."""
+    out = PushRequest("vscm", 5.0, None, (1.10, 0.12), 0.0, None, ((1.10, 0.0), 0.0))
+    result = plan_push("vscm", 5.0, settings=settings.with_overrides({"solver.time_limit_s": 2.0}),
+                       target_position_m=np.array(out.target_position_m), object_pose=out.object_pose)
+    assert not result.metrics.success
+    assert re.search(r"needs the object's side face 1 .* the plate falls \d+\.\d cm short", result.note), result.note
+    assert not any(record.name.startswith("side face") for record in result.stages)
+    status, message = response_status(result, settings)
+    assert status == PlanPush.Response.STATUS_TASK_NOT_ACHIEVED and message.endswith(result.note)
+    assert result.summary()["note"] == result.note
 
 
 @pytest.mark.parametrize("target, yaw", [((0.99, 0.15), 0.0), ((1.03, -0.15), 0.2)])

@@ -49,6 +49,8 @@ def print_summary(result: PlanResult) -> None:
           + (f"; {zone_note(m.steady_reach_margin_m)}" if zone(m.steady_reach_margin_m) == "strike" else ""))
     if motion.warnings:
         print(f"MuJoCo warnings    {motion.warnings}")
+    if result.note and not m.success:
+        print(f"why                {result.note}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -153,7 +153,7 @@ def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[f
     request = _request(waypoint, job, 1.0, scales)
     try:
         start = side_start(plan_settings, request)
-        if start is None:
+        if start is None or not start.reaches:
             return None
         result = _plan(request, plan_settings)
     except ValueError:

@@ -60,7 +60,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     # (settings overrides, discovery start fraction, None for a script or a SideStart, stage-name prefix)
     jobs = []
     side = side_start(settings, request)
-    if side is not None:  # first the face the goal needs; the near face's starts follow, as for any goal
+    if side is not None and side.reaches:  # first the face the goal needs; the near face's starts follow
         faces = stages.scripted.side_faces
         overrides = {"horizon_s": settings.round_horizon_s(faces.horizon_scale),
                      "control_period_s": faces.control_period_s}
@@ -142,7 +142,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     interrupted = next((result.status for _, result in ordered if result.status.interrupted), None)
     return dataclasses.replace(outcome, log=log, stages=records, status=interrupted or outcome.status,
                                solve_time_s=clock.elapsed(), setup_s=sum(result.setup_s for _, result in ordered),
-                               executed=executed)
+                               executed=executed, note=side.note() if side is not None and not side.reaches else "")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,6 +152,15 @@ class SideStart:
     face: int                # in quarter turns from the near face (side_faces.face_needed)
     tilt_rad: float          # side_faces.plate_tilt's
     offset_scale: float = 1.0  # an entry of side_faces.offset_scales
+    short_m: float = 0.0     # how far the plate falls short of the face's contact at that tilt (plate_tilt's)
+    reaches: bool = True     # short_m within side_faces.reach_tolerance_m: a start; else the near face's alone
+
+    def note(self) -> str:
+        """What an answer whose goal needs this face, out of the plate's reach, says of it."""
+        return (f"a push towards the goal needs the object's side face {self.face} (more than 45 degrees off the "
+                f"near face's normal), and the plate falls {100 * self.short_m:.1f} cm short of that face's "
+                f"contact along the push: only the near face's pushes were tried, which reach such goals less often "
+                f"and more slowly")
 
 
 def _discovery(start: float | SideStart | None) -> bool:
@@ -160,8 +169,9 @@ def _discovery(start: float | SideStart | None) -> bool:
 
 
 def side_start(settings: Settings, request: PushRequest) -> SideStart | None:
-    """The side face the request's goal needs (side_faces.face_needed), where it is one of side_faces.faces and the
-    plate reaches its contact, with the tilt that reaches it; else None: the near face's starts alone."""
+    """The side face the request's goal needs (side_faces.face_needed), where it is one of side_faces.faces, with
+    the tilt that reaches its contact (`reaches`), or the one that comes nearest; None where the goal needs none:
+    the near face's starts alone."""
     side = settings.stages.scripted.side_faces
     if request.target_position_m is None:
         return None
@@ -172,7 +182,7 @@ def side_start(settings: Settings, request: PushRequest) -> SideStart | None:
     posed = build_problem(settings, request)
     tilt_rad, short_m = plate_tilt(posed.scene, posed.initial_state, posed.task, face, side,
                                    settings.stages.scripted.joint_margin_rad)
-    return SideStart(face, tilt_rad) if short_m <= side.reach_tolerance_m else None
+    return SideStart(face, tilt_rad, short_m=short_m, reaches=short_m <= side.reach_tolerance_m)
 
 
 class StartStop:

@@ -149,4 +149,5 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         scene=discovery.scene,
         sturdy=bool(outcome.executed is not None and outcome.executed.world_tracked_errors
                     and outcome.executed.worst_world(settings.task) < 1.0),
+        note=outcome.note,
     )

@@ -237,6 +237,7 @@ class PlanResult:
     scene: Scene                     # where it was planned: the object's start pose, the geometry to draw
     sturdy: bool = False             # tracked to within the task's tolerances in the model and in every world of
                                      # tracking.world_*_scales, as the search judged it (False: other worlds not asked)
+    note: str = ""                   # what the search could not try, which an answer that misses says
 
     @property
     def executed_motion(self) -> Trajectory:
@@ -273,6 +274,7 @@ class PlanResult:
             "warnings": motion.warnings,
             "derivatives": self.derivative_info,
             "stages": [record.as_dict() for record in self.stages],
+            "note": self.note,
         }
 
     def finite(self) -> bool:

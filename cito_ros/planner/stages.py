@@ -52,6 +52,7 @@ class Outcome:
     solve_time_s: float
     setup_s: float                # posing the problems, summed over starts
     executed: Executed | None = None  # the returned torques' execution, judged (the physical pipeline)
+    note: str = ""                # what the search could not try (physical.SideStart.note), for the answer
 
 
 class SolveClock:

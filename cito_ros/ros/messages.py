@@ -134,7 +134,7 @@ def response_status(result: PlanResult, settings: Settings) -> tuple[int, str]:
         return Response.STATUS_SUCCEEDED, ends + (f"; {note}" if note else "")
     return Response.STATUS_TASK_NOT_ACHIEVED, (
         f"task not achieved: {ends}; short of success by: {', '.join(shortfalls(m, settings.task))}"
-        + (f"; {note}" if note else ""))
+        + "".join(f"; {n}" for n in (note, result.note) if n))
 
 
 def metrics_msg(metrics: Metrics) -> PlanMetrics:
