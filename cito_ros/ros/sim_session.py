@@ -14,6 +14,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import rclpy
@@ -108,16 +109,18 @@ class Operator:
                                                    yaw_of(np.array([o.w, o.x, o.y, o.z])))]
         self.max_tilt_rad = max(self.max_tilt_rad, tilt_of(np.array([o.w, o.x, o.y, o.z])))
 
-    def spin(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
+    def spin_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
+        """Spin until done() or timeout_s has passed; done()."""
+        deadline = time.monotonic() + timeout_s
+        while not done() and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.02)
+        return done()
+
+    def spin(self, seconds: float) -> None:
+        self.spin_until(lambda: False, seconds)
 
     def wait(self, future, timeout_s: float = RESULT_TIMEOUT_S):
-        deadline = time.monotonic() + timeout_s
-        while not future.done() and time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.02)
-        assert future.done(), "no answer from the executor node"
+        assert self.spin_until(future.done, timeout_s), "no answer from the executor node"
         return future.result()
 
     def wait_for_robot(self, timeout_s: float = 60.0) -> bool:
@@ -126,10 +129,7 @@ class Operator:
             return False
         self.joints.clear()
         self.true_poses.clear()
-        deadline = time.monotonic() + timeout_s
-        while (len(self.joints) < 10 or not self.true_poses) and time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.02)
-        return len(self.joints) >= 10 and bool(self.true_poses)
+        return self.spin_until(lambda: len(self.joints) >= 10 and bool(self.true_poses), timeout_s)
 
     def send(self, goal: ExecuteGoal, z_m: float = 0.1, tries: int = 3):
         """The goal's handle (accepted or not). A goal not answered within GOAL_RESPONSE_S is sent again: Fast DDS
@@ -143,10 +143,7 @@ class Operator:
         message.target_pose.orientation.z, message.target_pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
         for _ in range(tries):
             answer = self.action.send_goal_async(message, feedback_callback=lambda m: self.feedback.append(m.feedback))
-            deadline = time.monotonic() + GOAL_RESPONSE_S
-            while not answer.done() and time.monotonic() < deadline:
-                self.executor.spin_once(timeout_sec=0.02)
-            if answer.done():
+            if self.spin_until(answer.done, GOAL_RESPONSE_S):
                 return answer.result()
         raise TimeoutError(f"the executor node answered none of {tries} goals, each waited for {GOAL_RESPONSE_S:g} s")
 
@@ -161,9 +158,7 @@ class Operator:
             if not handle.accepted:
                 raise RuntimeError("the executor node rejected the goal")
             ending = handle.get_result_async()
-            deadline = time.monotonic() + RESULT_TIMEOUT_S
-            while not (self.feedback or ending.done()) and time.monotonic() < deadline:
-                self.executor.spin_once(timeout_sec=0.02)
+            self.spin_until(lambda ending=ending: bool(self.feedback) or ending.done(), RESULT_TIMEOUT_S)
             if self.feedback or not ending.done() or \
                     ending.result().result.status != ExecutePush.Result.STATUS_STALE_MEASUREMENTS:
                 break
