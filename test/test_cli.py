@@ -179,7 +179,7 @@ def test_bench_refusals_times_a_one_shot_refusal_of_each_kind_and_its_reason():
     report = json.loads(result.stdout)
     reasons = {row["request"]: row["message"] for row in report["requests"]}
     assert "behind the object's pushed face" in reasons["pull back"]
-    assert "turns the object by 1.20 rad" in reasons["turn in place"]
+    assert "turns the object by 0.60 rad" in reasons["turn in place"]
     assert "beyond the 1.249 m" in reasons["beyond the reach"]
     assert "off the table" in reasons["off the table"]
     assert "unknown scene 'no_such_scene'" in reasons["unknown scene"]

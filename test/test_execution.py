@@ -37,6 +37,16 @@ def started(settings, mismatch=Mismatch(), goal: ExecuteGoal = GOAL) -> tuple[Ex
     return executor, world
 
 
+def test_the_executor_judges_the_cube_by_its_yaw_modulo_a_quarter_turn():
+    """The cube turned by a quarter turn is the same cube: a goal a quarter turn or a whole turn from the cube's
+    yaw is reached, and the yaw error is the turn to the nearest equivalent, never more than an eighth of a turn."""
+    for turns in (1, -1, 3, 4):
+        goal = dataclasses.replace(GOAL, target_yaw_rad=GOAL.target_yaw_rad + turns * math.pi / 2)
+        assert goal.errors(GOAL.target_position_m, GOAL.target_yaw_rad) == pytest.approx((0.0, 0.0), abs=1e-12)
+        assert goal.errors((1.10, 0.03), GOAL.target_yaw_rad + 0.7)[1] == pytest.approx(0.7)
+        assert goal.errors((1.10, 0.03), GOAL.target_yaw_rad + 0.9)[1] == pytest.approx(math.pi / 2 - 0.9)
+
+
 def test_the_world_is_the_scene_with_the_mismatch_and_its_camera_is_late_noisy_and_slow(settings):
     mismatch = Mismatch("off", 1.5, 2.0, (0.015, -0.015), 0.1, 0.001, 0.01, 0.03, 30.0)
     world = SimulatedWorld(settings, mismatch, start_configuration(7), seed=3)

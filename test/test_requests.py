@@ -7,6 +7,7 @@ import pytest
 
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
+from cito_ros.planner.task import equivalent_yaw_note
 
 
 class TestBadRequests:
@@ -75,22 +76,35 @@ class TestReach:
 
     def test_a_turn_one_push_cannot_make_is_refused_with_how_much(self, settings):
         """A push turns the cube as it moves it, by at most the orientation tolerance plus
-        task.turn_per_push_rad_per_m per metre and at most task.max_push_turn_rad: a turn in place, or 1.2 rad
-        over 8 cm, is refused before anything is solved (each ran to the time limit and missed); 0.6 rad over 8 cm
-        and a turn within the tolerance in place are posed; the same turns the other way round or a whole turn
-        apart alike. A long push is refused a turn beyond the cap."""
-        k, most = settings.task.turn_per_push_rad_per_m, settings.task.max_push_turn_rad
-        refused = (([0.99, 0.0], 0.6), ([0.99, 0.0], -0.6), ([1.07, 0.0], 1.2), ([1.07, 0.0], -1.2 + 2 * math.pi),
-                   ([1.24, 0.0], 0.2 + most))
+        task.turn_per_push_rad_per_m per metre: a turn of 0.6 rad in place, or over 2 cm, is refused before anything
+        is solved (each ran to the time limit and missed); 0.6 rad over 8 cm and a turn within the tolerance in place
+        are posed; the same turns the other way round or a whole turn apart alike."""
+        k = settings.task.turn_per_push_rad_per_m
+        refused = (([0.99, 0.0], 0.6), ([0.99, 0.0], -0.6), ([1.01, 0.0], 0.6), ([1.01, 0.0], -0.6 + 2 * math.pi))
         for target, yaw in refused:
-            turn = abs(math.remainder(yaw, 2 * math.pi))
-            with pytest.raises(ValueError, match=rf"target turns the object by {turn:.2f} rad over a "
+            with pytest.raises(ValueError, match=rf"target turns the object by 0.60 rad over a "
                                                  rf"{100 * (target[0] - 0.99):.1f} cm push: .* at most "
-                                                 rf"{0.15 + min(k * (target[0] - 0.99), most):.2f} rad"):
+                                                 rf"{0.15 + k * (target[0] - 0.99):.2f} rad"):
                 build_problem(settings, PushRequest("vscm", 7, None, target, yaw))
         posed = (([0.99, 0.0], 0.1), ([1.07, 0.0], 0.6), ([1.07, 0.0], -0.6), ([1.07, 0.0], 2 * math.pi + 0.6))
         for target, yaw in posed:
             assert build_problem(settings, PushRequest("vscm", 7, None, target, yaw)).task is not None
+
+    def test_a_goal_yaw_counts_modulo_a_quarter_turn_and_the_answer_says_which_it_aimed_at(self, settings):
+        """The cube turned by a quarter turn is the same cube: a turn of 1.2 rad over 8 cm (refused when the goal's
+        frame counted, for 0.15 + 12.5 x 0.08 = 1.15 rad) is the turn of 1.2 - pi/2 = -0.371 rad, posed and aimed at
+        that yaw; from a cube at 0.6 rad the goal yaw -0.8 is aimed at -0.8 + pi/2. The note names the quarter
+        turns; a goal already nearest says nothing."""
+        task = build_problem(settings, PushRequest("vscm", 7, None, [1.07, 0.0], 1.2)).task
+        assert task.target_yaw_rad == pytest.approx(1.2 - math.pi / 2)
+        assert equivalent_yaw_note(1.2, task.target_yaw_rad) == (
+            "the goal yaw 1.200 rad was taken as -0.371 rad, 1 quarter turn(s) clockwise from it: the same pose of "
+            "the cube, nearer its start")
+        turned = build_problem(settings, PushRequest("vscm", 7, None, [1.07, 0.0], -0.8, None, ((0.99, 0.0), 0.6)))
+        assert turned.task.target_yaw_rad == pytest.approx(-0.8 + math.pi / 2)
+        assert "counter-clockwise" in equivalent_yaw_note(-0.8, turned.task.target_yaw_rad)
+        assert equivalent_yaw_note(0.3, build_problem(settings, PushRequest("vscm", 7, None, [1.07, 0.0], 0.3)
+                                                      ).task.target_yaw_rad) == ""
 
     def test_the_pushed_face_is_the_face_towards_the_arm_wherever_the_cube_is_turned(self, settings):
         """Without side faces: a goal straight beside the cube is a side push for a cube square to the arm, and a

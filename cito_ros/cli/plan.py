@@ -22,12 +22,13 @@ from cito_ros.cli.progress import advance, progress_bar  # noqa: E402
 from cito_ros.model.contact_models import CONTACT_MODELS  # noqa: E402
 from cito_ros.planner.plan import plan_push  # noqa: E402
 from cito_ros.planner.results import IterationLog, PlanResult, zone, zone_note  # noqa: E402
+from cito_ros.planner.task import equivalent_yaw_note  # noqa: E402
 from cito_ros.settings import load_settings  # noqa: E402
 
 INVALID_REQUEST = "invalid_request"
 
 
-def print_summary(result: PlanResult) -> None:
+def print_summary(result: PlanResult, requested_yaw_rad: float) -> None:
     m = result.metrics
     target = ", ".join(f"{v:.3f}" for v in result.target_position_m[:2])
     motion = result.executed_motion
@@ -47,6 +48,8 @@ def print_summary(result: PlanResult) -> None:
     print(f"reach zone         {zone(m.steady_reach_margin_m)}: the goal {100 * abs(m.steady_reach_margin_m):.1f} cm "
           f"{'inside' if m.steady_reach_margin_m >= 0 else 'beyond'} the steady push reach"
           + (f"; {zone_note(m.steady_reach_margin_m)}" if zone(m.steady_reach_margin_m) == "strike" else ""))
+    if equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad):
+        print(f"goal yaw           {equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad)}")
     if motion.warnings:
         print(f"MuJoCo warnings    {motion.warnings}")
     if result.note and not m.success:
@@ -99,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(result.summary()))
     else:
-        print_summary(result)
+        print_summary(result, yaw)
     return 0
 
 

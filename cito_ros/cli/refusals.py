@@ -19,7 +19,7 @@ import numpy as np
 
 # (name, cito-plan arguments after --json): the default scene, its cube 0.99 m out, the start pose q0(5)
 REQUESTS = (("pull back", ["--target", "0.80", "0.0", "0.0"]),
-            ("turn in place", ["--target", "0.99", "0.0", "1.2"]),
+            ("turn in place", ["--target", "0.99", "0.0", "0.6"]),
             ("beyond the reach", ["--target", "1.30", "0.0", "0.0"]),
             ("off the table", ["--target", "0.99", "1.5", "0.0"]),
             ("unknown scene", ["--target", "1.10", "0.0", "0.0", "--scene", "no_such_scene"]))

@@ -37,7 +37,7 @@ from cito_ros.execution.policy import Policy, Retreat, bias_torques
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.model.speed_guard import within_speed_limits
 from cito_ros.planner.results import tolerance_ratio
-from cito_ros.planner.task import turn_rad, yaw_of
+from cito_ros.planner.task import cube_turn_rad, yaw_of
 from cito_ros.settings import Settings
 
 
@@ -75,9 +75,9 @@ class ExecuteGoal:
 
 
 def pose_errors(position_m, yaw_rad: float, other_position_m, other_yaw_rad: float) -> tuple[float, float]:
-    """How far apart two planar poses are: in position (m, x and y) and in yaw (rad, the shorter way round)."""
+    """How far apart two planar poses of the cube are: in position (m, x and y) and in yaw (rad, task.cube_turn_rad)."""
     return float(math.hypot(position_m[0] - other_position_m[0], position_m[1] - other_position_m[1])), \
-        abs(turn_rad(other_yaw_rad, yaw_rad))
+        abs(cube_turn_rad(other_yaw_rad, yaw_rad))
 
 
 def moved_beyond(settings: Settings, pose, other_pose) -> bool:

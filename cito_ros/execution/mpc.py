@@ -82,8 +82,9 @@ class PushModel:
             return self.task
         (x, y), yaw = target
         key = (float(x), float(y), float(yaw))
-        if key not in self._tasks:
-            self._tasks[key] = make_task(self.scene, self.resting_state, np.array([x, y]), yaw, self.settings)
+        if key not in self._tasks:  # the yaw as given (the measured cube's equivalent), not the nearest the model's
+            self._tasks[key] = dataclasses.replace(
+                make_task(self.scene, self.resting_state, np.array([x, y]), yaw, self.settings), target_yaw_rad=yaw)
         return self._tasks[key]
 
     def draw_back_q(self, state: np.ndarray) -> np.ndarray | None:

@@ -19,7 +19,7 @@ from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status, tolerance_ratio, within_limits
 from cito_ros.planner.side_faces import NEAR, near_normal_rad
-from cito_ros.planner.task import turn_rad, yaw_of
+from cito_ros.planner.task import cube_turn_rad, yaw_of
 from cito_ros.settings import Settings
 
 
@@ -148,7 +148,7 @@ def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[f
         return None
     waypoint = dataclasses.replace(
         goal, target_position_m=(x - aside_m * normal[1], y + aside_m * normal[0]),
-        target_yaw_rad=yaw + abs(aside_m) / (abs(aside_m) + along_m) * turn_rad(yaw, goal.target_yaw_rad))
+        target_yaw_rad=yaw + abs(aside_m) / (abs(aside_m) + along_m) * cube_turn_rad(yaw, goal.target_yaw_rad))
     plan_settings = executor_plan_settings(settings, job.time_left_s, executor.plan_iterations, worlds, SIDE_ONLY)
     request = _request(waypoint, job, 1.0, scales)
     try:
@@ -165,12 +165,12 @@ def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[f
 
 def _request(goal: ExecuteGoal, job: Job, fraction: float, object_scales: tuple[float, float]) -> PushRequest:
     """A push from the job's measured arm and cube to `fraction` of the way to the goal, in position and in yaw
-    (the shorter way round), for a cube whose friction and mass are object_scales times the scene's."""
+    (to the goal yaw's equivalent nearest the cube's), for a cube whose friction and mass are object_scales times the
+    scene's."""
     (x, y), yaw = job.object_pose
-    position, target_yaw = np.array(goal.target_position_m), goal.target_yaw_rad
+    position, target_yaw = np.array(goal.target_position_m), yaw + fraction * cube_turn_rad(yaw, goal.target_yaw_rad)
     if fraction < 1.0:
         position = np.array([x, y]) + fraction * (position - np.array([x, y]))
-        target_yaw = yaw + fraction * turn_rad(yaw, target_yaw)
     return PushRequest(goal.contact_model, start_q=job.q, target_position_m=position, target_yaw_rad=target_yaw,
                        scene=goal.scene, object_pose=((x, y), yaw), object_scales=object_scales)
 

@@ -17,8 +17,9 @@ from cito_ros.model.scene import TABLE_TOP_Z_M, Scene, start_configuration
 from cito_ros.model.simulator import Simulator
 from cito_ros.planner import push_limits
 from cito_ros.planner.problem import PushProblem, StageCost
-from cito_ros.planner.task import PushTask, turn_rad, yaw_of
+from cito_ros.planner.task import PushTask, nearest_equivalent_yaw, turn_rad, yaw_of
 from cito_ros.settings import SceneConfig, Settings
+from cito_ros.settings.typed_config import require_finite
 
 
 @dataclass(frozen=True)
@@ -119,10 +120,10 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
       the face points into the object within the friction cone, so pushing moves the object away from the face's
       plane, never back (nor does the tilted plate on a side face: a pull needs the far face, which the plate
       reaches only for an object within push_limits.pull_reach_m of the arm base);
-    - one whose turn is more than the orientation tolerance plus task.turn_per_push_rad_per_m times the distance
-      the object's centre moves, or plus task.max_push_turn_rad: an off-centre push turns the object as it moves
-      it, no push turns it in place, and in a sweep of single pushes none turned it further (docs/results.md: A turn
-      one push cannot make is refused at once)."""
+    - one whose turn (to the goal yaw's equivalent nearest the object's, at most an eighth of a turn: make_task) is
+      more than the orientation tolerance plus task.turn_per_push_rad_per_m times the distance the object's centre
+      moves: an off-centre push turns the object as it moves it, no push turns it in place, and in a sweep of single
+      pushes none turned it faster (docs/results.md: A turn one push cannot make is refused at once)."""
     qpos = scene.object_qpos(initial_state)
     normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
     push_m = task.target_position_m[:2] - qpos[:2]
@@ -138,14 +139,12 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
     turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
     distance_m = float(np.linalg.norm(push_m))
     limits = settings.task
-    most_rad = limits.success_orientation_error_rad + min(limits.turn_per_push_rad_per_m * distance_m,
-                                                          limits.max_push_turn_rad)
+    most_rad = limits.success_orientation_error_rad + limits.turn_per_push_rad_per_m * distance_m
     if turn > most_rad:
         raise ValueError(f"target turns the object by {turn:.2f} rad over a {100 * distance_m:.1f} cm push: one "
-                         f"push on one of the object's faces turns it by at most "
-                         f"{most_rad:.2f} rad there ({limits.success_orientation_error_rad:g} rad plus "
-                         f"{limits.turn_per_push_rad_per_m:g} rad per metre pushed, at most "
-                         f"{limits.max_push_turn_rad:g}); a turn in place or a larger one needs pushes on other faces")
+                         f"push on one of the object's faces turns it by at most {most_rad:.2f} rad there "
+                         f"({limits.success_orientation_error_rad:g} rad plus {limits.turn_per_push_rad_per_m:g} rad "
+                         f"per metre pushed); a turn in place needs pushes on other faces")
 
 
 def check_object_start(scene: Scene, start_q: np.ndarray) -> None:
@@ -170,8 +169,10 @@ def check_object_start(scene: Scene, start_q: np.ndarray) -> None:
 
 def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target_yaw_rad: float,
               settings: Settings) -> PushTask:
-    """The push target, checked against what pushing on this table can reach."""
-    start = scene.object_qpos(initial_state)[:3]
+    """The push target, checked against what pushing on this table can reach; its yaw the goal's equivalent
+    (task.nearest_equivalent_yaw: the cube turned by quarter turns) nearest the object's."""
+    qpos = scene.object_qpos(initial_state)
+    start = qpos[:3]
     if target_position_m is None:
         target = start + np.array([settings.task.push_distance_m, 0.0, 0.0])
     else:
@@ -193,7 +194,8 @@ def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target
     # a pushed object ends at its resting height: a z within the tolerance says "on the table", so the
     # same goal with another such z (the table top plus the half edge is 0.1 mm above the settled cube)
     # is the same problem and the same plan
-    task = PushTask(np.array([target[0], target[1], start[2]]), target_yaw_rad)
+    task = PushTask(np.array([target[0], target[1], start[2]]),
+                    nearest_equivalent_yaw(require_finite("target yaw", target_yaw_rad), yaw_of(qpos[3:7])))
     reach = scene.push_reach_m()
     distance = float(np.linalg.norm(task.target_position_m[:2]))
     if distance > reach:

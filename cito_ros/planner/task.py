@@ -2,6 +2,10 @@
 
 ROS-free. Orientation errors are the Euler angles (roll, pitch, yaw) of the
 object's rotation relative to the target rotation (a yaw about world z).
+
+The object is a cube (every scene's: one edge, SceneConfig.object.half_size_m, uniform): turned by a quarter turn
+about z it is the same object, to the camera and to the physics, so a goal yaw counts modulo QUARTER_TURN_RAD.
+A task aims at the goal's equivalent nearest the object's start yaw (make_task), at most an eighth of a turn away.
 """
 from __future__ import annotations
 
@@ -32,6 +36,29 @@ def yaw_of(quaternion: np.ndarray) -> float | np.ndarray:
 def turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
     """The turn (rad) from one yaw to another the shorter way round, in [-pi, pi]: counter-clockwise positive."""
     return math.remainder(to_yaw_rad - from_yaw_rad, 2 * math.pi)
+
+
+QUARTER_TURN_RAD = math.pi / 2
+
+
+def cube_turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
+    """The turn (rad) from the cube at one yaw to the same cube at another, the shortest of its four equivalents:
+    in [-pi/4, pi/4]."""
+    return math.remainder(to_yaw_rad - from_yaw_rad, QUARTER_TURN_RAD)
+
+
+def nearest_equivalent_yaw(target_yaw_rad: float, yaw_rad: float) -> float:
+    """The yaw a quarter turn or several from target_yaw_rad (the same pose of the cube) nearest yaw_rad."""
+    return yaw_rad + cube_turn_rad(yaw_rad, target_yaw_rad)
+
+
+def equivalent_yaw_note(requested_yaw_rad: float, taken_yaw_rad: float) -> str:
+    """What an answer says where the yaw aimed at is not the one requested (make_task), else ""."""
+    quarters = round(turn_rad(requested_yaw_rad, taken_yaw_rad) / QUARTER_TURN_RAD)
+    return "" if quarters == 0 else (
+        f"the goal yaw {requested_yaw_rad:.3f} rad was taken as {taken_yaw_rad:.3f} rad, {abs(quarters)} quarter "
+        f"turn(s) {'counter-clockwise' if quarters > 0 else 'clockwise'} from it: the same pose of the cube, nearer "
+        f"its start")
 
 
 def yaw_rotation(yaw_rad: float) -> np.ndarray:

@@ -28,6 +28,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.model.scene import ARM_JOINTS, TABLE_TOP_Z_M
 from cito_ros.planner.results import IterationLog, Metrics, PlanResult, StageRecord, Status, shortfalls, zone_note
+from cito_ros.planner.task import equivalent_yaw_note, yaw_of
 from cito_ros.settings import SceneConfig, Settings
 
 Response = PlanPush.Response
@@ -116,8 +117,8 @@ def parse_start_state(state: JointState) -> np.ndarray | None:
     return q
 
 
-def response_status(result: PlanResult, settings: Settings) -> tuple[int, str]:
-    """The service status and a message for a finished plan."""
+def response_status(result: PlanResult, settings: Settings, requested_yaw_rad: float) -> tuple[int, str]:
+    """The service status and a message for a finished plan of a goal with requested_yaw_rad."""
     status = result.status
     if status is Status.CANCELLED:
         return Response.STATUS_CANCELLED, "the solve was cancelled; the best iterate is returned"
@@ -129,12 +130,12 @@ def response_status(result: PlanResult, settings: Settings) -> tuple[int, str]:
     m = result.metrics
     ends = (f"executed without the virtual force, the object ends {100 * m.position_error_m:.2f} cm and "
             f"{m.orientation_error_rad:.3f} rad from the goal (solver {status.value})")
-    note = zone_note(m.steady_reach_margin_m)
+    notes = (zone_note(m.steady_reach_margin_m), equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad))
     if m.success:
-        return Response.STATUS_SUCCEEDED, ends + (f"; {note}" if note else "")
+        return Response.STATUS_SUCCEEDED, ends + "".join(f"; {n}" for n in notes if n)
     return Response.STATUS_TASK_NOT_ACHIEVED, (
         f"task not achieved: {ends}; short of success by: {', '.join(shortfalls(m, settings.task))}"
-        + "".join(f"; {n}" for n in (note, result.note) if n))
+        + "".join(f"; {n}" for n in (*notes, result.note) if n))
 
 
 def metrics_msg(metrics: Metrics) -> PlanMetrics:
@@ -242,8 +243,8 @@ def plan_messages(result: PlanResult, request_id: int, stamp_ns: int, frame_id: 
         fill_xyz(message.contact_wrench.torque, torque)
         fill_xyz(message.contact_point, point)
         forces.append(message)
-    status, message = response_status(result, settings)
     x, y, z, w = target_orientation
+    status, message = response_status(result, settings, float(yaw_of(np.array([w, x, y, z]))))
     result_msg = PlanResultMsg(
         header=header, request_id=request_id, status=status, message=message, contact_model=result.contact_model,
         target_pose=pose_msg(result.target_position_m, np.array([w, x, y, z])),

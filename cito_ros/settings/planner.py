@@ -47,11 +47,8 @@ class TaskSettings:
     target_height_tolerance_m: float = setting("a target's z must be the object's resting height within this (m)",
                                                positive=True)
     turn_per_push_rad_per_m: float = setting("one push on the pushed face turns the object by at most "
-                                             "success_orientation_error_rad plus this much per metre its centre moves, "
-                                             "and at most max_push_turn_rad: a goal that needs more is refused at "
-                                             "once (rad/m)", positive=True)
-    max_push_turn_rad: float = setting("the most one push turns the object beyond success_orientation_error_rad, "
-                                       "however long (rad)", positive=True)
+                                             "success_orientation_error_rad plus this much per metre its centre moves: "
+                                             "a goal that needs more is refused at once (rad/m)", positive=True)
 
 
 @dataclass(frozen=True)

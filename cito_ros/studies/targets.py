@@ -162,7 +162,7 @@ def solve_goal(goal: Goal, model: str, settings: Settings, perturbation: str = "
     (plan_perturbed); unperturbed, also its tracked errors under reference offsets (offset_tracked_errors_m)."""
     request = perturbed_request(model, goal.beta, goal.target_position_m, goal.target_yaw_rad, perturbation)
     described = {"goal": goal.index, "push_m": goal.push_m, "direction_rad": goal.direction_rad, "face": goal.face,
-                 "perturbation": perturbation}
+                 "perturbation": perturbation, "requested_yaw_rad": goal.target_yaw_rad}
     warm_up(settings)  # as a node does before it serves: its answers, refusals too, do not pay for the reaches
     began = time.perf_counter()
     try:

@@ -10,6 +10,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from cito_ros.planner.results import ZONES, phase_table, zone
+from cito_ros.planner.task import equivalent_yaw_note
 from cito_ros.studies.targets import FACES, OFFSET_AMPLITUDE_RAD
 
 
@@ -134,8 +135,13 @@ def report(records: list[dict[str, Any]], refused: list[str], where: dict[str, A
         lost = [r for r in failed if f"-{model}-none" in r["key"]]
         refused_here = [r for r in refusals if r["contact_model"] == model]
         goals = len(rows) + len(lost) + len(refused_here)
+        turned = [r for r in rows if equivalent_yaw_note(r.get("requested_yaw_rad", r["target_yaw_rad"]),
+                                                         r["target_yaw_rad"])]
         per_model[model] = {
             "goals": goals,
+            # goals whose yaw was taken as the cube's equivalent nearer its start (task.nearest_equivalent_yaw): none
+            # of these would succeed with a marked cube, whose frame tells its quarter turns apart
+            "equivalent_yaw_goals_successes": [len(turned), sum(r["success"] for r in turned)],
             "failed_solves": len(lost),
             "refusals": len(refused_here),
             "refusal_time_s_max": max((r["refusal_time_s"] for r in refused_here), default=None),
@@ -194,6 +200,11 @@ def markdown(summary: dict[str, Any]) -> str:
     for key, error in summary["failures"]:
         lines.append(f"- {key}: failed: {error}")
     for model, m in summary["models"].items():
+        turned, won = m.get("equivalent_yaw_goals_successes", (0, 0))
+        if turned:
+            lines.append(f"{model.upper()}: {turned} posed goal(s) aimed at a yaw a quarter turn or more from the one "
+                         f"drawn (the same pose of the cube, nearer its start: cito_ros.planner.task), {won} of them "
+                         f"succeeded; with a marked cube none of those {won} would")
         if m["refusals"]:
             lines.append(f"{model.upper()}: {m['refusals']} goal(s) refused, the slowest answer in "
                          f"{m['refusal_time_s_max']:.3f} s (e.g. {summary['refusal_examples'][0]})")
