@@ -19,7 +19,7 @@ from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status, tolerance_ratio, within_limits
 from cito_ros.planner.side_faces import NEAR, near_normal_rad
-from cito_ros.planner.task import cube_turn_rad, yaw_of
+from cito_ros.planner.task import cube_turn_rad, nearest_equivalent_yaw, yaw_of
 from cito_ros.settings import Settings
 
 
@@ -168,9 +168,10 @@ def _request(goal: ExecuteGoal, job: Job, fraction: float, object_scales: tuple[
     (to the goal yaw's equivalent nearest the cube's), for a cube whose friction and mass are object_scales times the
     scene's."""
     (x, y), yaw = job.object_pose
-    position, target_yaw = np.array(goal.target_position_m), yaw + fraction * cube_turn_rad(yaw, goal.target_yaw_rad)
+    position, target_yaw = np.array(goal.target_position_m), nearest_equivalent_yaw(goal.target_yaw_rad, yaw)
     if fraction < 1.0:
         position = np.array([x, y]) + fraction * (position - np.array([x, y]))
+        target_yaw = yaw + fraction * cube_turn_rad(yaw, target_yaw)
     return PushRequest(goal.contact_model, start_q=job.q, target_position_m=position, target_yaw_rad=target_yaw,
                        scene=goal.scene, object_pose=((x, y), yaw), object_scales=object_scales)
 

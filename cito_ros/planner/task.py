@@ -48,8 +48,9 @@ def cube_turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
 
 
 def nearest_equivalent_yaw(target_yaw_rad: float, yaw_rad: float) -> float:
-    """The yaw a quarter turn or several from target_yaw_rad (the same pose of the cube) nearest yaw_rad."""
-    return yaw_rad + cube_turn_rad(yaw_rad, target_yaw_rad)
+    """The yaw a quarter turn or several from target_yaw_rad (the same pose of the cube) nearest yaw_rad:
+    target_yaw_rad itself, to the last bit, where it is the nearest."""
+    return target_yaw_rad - QUARTER_TURN_RAD * round((target_yaw_rad - yaw_rad) / QUARTER_TURN_RAD)
 
 
 def equivalent_yaw_note(requested_yaw_rad: float, taken_yaw_rad: float) -> str:
