@@ -1,6 +1,7 @@
 """Pushes in sequence: where the executor's push to the goal would not land alike in its worlds, and pushes are left,
 it pushes to a waypoint partway first; where the goal is outside the near face's friction cone, across on a side face
 first (cito_ros.execution.planning.compute). Real MuJoCo, the real planner."""
+import dataclasses
 import math
 
 import numpy as np
@@ -54,6 +55,20 @@ def test_a_push_not_sturdy_to_the_goal_goes_sturdy_to_a_waypoint_partway_while_p
     assert np.linalg.norm(position - goal) > settings.task.success_position_error_m
     waypoint_yaw = CUBE[1] + fraction * (GOAL.target_yaw_rad - CUBE[1])
     assert abs(yaw - waypoint_yaw) < settings.task.success_orientation_error_rad
+
+
+def test_a_goal_given_a_quarter_turn_round_is_pushed_to_as_the_same_pose_of_the_cube(settings):
+    """The goal above with its yaw a quarter turn further: the same cube at the same pose. The push goes to the same
+    waypoint, its yaw the goal's equivalent nearest the cube's, and leaves the cube there, not turned towards the
+    yaw as given."""
+    turned = dataclasses.replace(GOAL, target_yaw_rad=GOAL.target_yaw_rad + math.pi / 2)
+    policy, position, yaw = first_push(settings, 2, turned)
+    fraction = settings.executor.waypoint_fraction
+    (x, y), target_yaw = policy.target
+    assert np.allclose((x, y), np.array(CUBE[0]) + fraction * (np.array(GOAL.target_position_m) - CUBE[0]))
+    assert target_yaw == pytest.approx(CUBE[1] + fraction * (GOAL.target_yaw_rad - CUBE[1]))
+    assert abs(yaw - target_yaw) < settings.task.success_orientation_error_rad
+    assert turned.errors(position, yaw) == pytest.approx(GOAL.errors(position, yaw))
 
 
 def test_where_neither_plan_is_sturdy_the_one_the_model_has_nearer_the_goal_is_made(settings):
