@@ -4,6 +4,7 @@ one, over Fast DDS on an isolated domain (localhost only)."""
 from __future__ import annotations
 
 import math
+import re
 import time
 from pathlib import Path
 
@@ -130,6 +131,17 @@ def test_next_valid_request_after_bad_ones_is_served(client, plans):
     assert response.success and response.status == PlanPush.Response.STATUS_SUCCEEDED
     earlier = [Path(plans[m][0].bag_path) for m in plans]
     assert all(read_with_rosbags(bag) for bag in earlier)  # nothing recorded before was lost
+
+
+def test_a_goal_yaw_a_quarter_turn_round_is_planned_as_the_same_cube_and_the_answer_says_so(client):
+    """The cube turned by pi/2 is the same cube: the push to (1.09, 0) with yaw pi/2 is planned to yaw 0, and
+    succeeds without turning the cube; the message names the yaw it aimed at."""
+    half = math.sqrt(0.5)
+    response = client.call(request("vscm", q=(0.0, 0.0, half, half)))
+    assert response.success, response.message
+    assert re.search(r"the goal yaw 1.571 rad was taken as -?0.000 rad, 1 quarter turn\(s\) clockwise from it",
+                     response.message), response.message
+    assert response.metrics.orientation_error_rad < 0.15
 
 
 def test_two_concurrent_requests_one_is_busy(client):

@@ -95,7 +95,7 @@ def test_an_answer_that_misses_a_goal_beside_the_cube_says_the_side_face_is_beyo
     assert not result.metrics.success
     assert re.search(r"needs the object's side face 1 .* the plate falls \d+\.\d cm short", result.note), result.note
     assert not any(record.name.startswith("side face") for record in result.stages)
-    status, message = response_status(result, settings)
+    status, message = response_status(result, settings, 0.0)
     assert status == PlanPush.Response.STATUS_TASK_NOT_ACHIEVED and message.endswith(result.note)
     assert result.summary()["note"] == result.note
 
