@@ -2,6 +2,7 @@
 Real Ray (embedded, local), real solves."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import signal
@@ -186,6 +187,21 @@ def test_a_refused_goal_is_reported_with_its_reason_and_time_apart_from_the_plan
     assert faces["far"]["solve_time_s"]["median"] is None and faces["near"]["goals"] == 1
     text = targets_report.markdown(summary)
     assert "| VSCM | far | 0/1 | 1 (" in text and "1 goal(s) refused" in text
+
+
+def test_goals_aimed_at_an_equivalent_yaw_are_counted_with_their_successes():
+    """A goal drawn a quarter turn round is planned as the same goal (its yaw taken back by the quarter turn), and
+    the report counts it apart: a marked cube would have none of its successes."""
+    settings = load_settings().with_overrides({"solver.max_iter": 4})
+    goal = targets.draw_goals(1, 0, settings)[0][0]
+    records = [targets.solve_goal(g, "vscm", settings)
+               for g in (goal, dataclasses.replace(goal, target_yaw_rad=goal.target_yaw_rad + math.pi / 2))]
+    assert records[1]["target_yaw_rad"] == pytest.approx(records[0]["target_yaw_rad"])
+    assert records[1]["requested_yaw_rad"] == pytest.approx(records[0]["target_yaw_rad"] + math.pi / 2)
+    summary = targets_report.report(records, [])
+    assert summary["models"]["vscm"]["equivalent_yaw_goals_successes"] == [1, int(records[1]["success"])]
+    assert "VSCM: 1 posed goal(s) aimed at a yaw a quarter turn or more from the one drawn" in \
+        targets_report.markdown(summary)
 
 
 def test_the_face_a_goal_needs_is_judged_from_the_face_towards_the_arm_however_the_cube_is_turned():

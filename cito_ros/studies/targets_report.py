@@ -302,12 +302,13 @@ def plot(records: list[dict[str, Any]], path: Path, where: dict[str, Any] | None
     for axis, (label, x_of, xscale) in zip(axes[0], panels):
         for model in dict.fromkeys(r["contact_model"] for r in records):
             rows = [r for r in records if r["contact_model"] == model]
-            rate = sum(r["success"] for r in rows) / len(rows)
+            wins, refused = sum(r["success"] for r in rows), sum(r["contact_model"] == model for r in refusals)
+            rate = f"{wins}/{len(rows)} posed succeed" + (f", {refused} refused" if refused else "")
             for success in (True, False):
                 chosen = [r for r in rows if r["success"] == success]
                 axis.scatter([x_of(r) for r in chosen], [max(100 * r["position_error_m"], 1e-3) for r in chosen],
                              color=colors.get(model, "gray"), facecolors=colors.get(model, "gray") if success else "none",
-                             s=30, label=f"{model.upper()} ({rate:.0%} success)" if success else None)
+                             s=30, label=f"{model.upper()} ({rate})" if success else None)
         fragile = [r for r in records if r["success"] and not all(offset_verdicts(r))]
         if fragile:
             axis.scatter([x_of(r) for r in fragile], [max(100 * r["position_error_m"], 1e-3) for r in fragile],
