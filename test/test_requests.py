@@ -94,7 +94,7 @@ class TestReach:
         """The cube turned by a quarter turn is the same cube: a turn of 1.2 rad over 8 cm (refused when the goal's
         frame counted, for 0.15 + 12.5 x 0.08 = 1.15 rad) is the turn of 1.2 - pi/2 = -0.371 rad, posed and aimed at
         that yaw; from a cube at 0.6 rad the goal yaw -0.8 is aimed at -0.8 + pi/2. The note names the quarter
-        turns; a goal already nearest says nothing."""
+        turns; a goal already nearest, or as near as its equivalent, says nothing."""
         task = build_problem(settings, PushRequest("vscm", 7, None, [1.07, 0.0], 1.2)).task
         assert task.target_yaw_rad == pytest.approx(1.2 - math.pi / 2)
         assert equivalent_yaw_note(1.2, task.target_yaw_rad) == (
@@ -105,6 +105,10 @@ class TestReach:
         assert "counter-clockwise" in equivalent_yaw_note(-0.8, turned.task.target_yaw_rad)
         assert equivalent_yaw_note(0.3, build_problem(settings, PushRequest("vscm", 7, None, [1.07, 0.0], 0.3)
                                                       ).task.target_yaw_rad) == ""
+        # 45 degrees as written to four digits (the hard case yaw_45deg), 4e-6 rad past an eighth of a turn, is as
+        # near either way round: taken as asked, not as -45 degrees
+        for yaw in (0.7854, -0.7854):
+            assert build_problem(settings, PushRequest("vscm", 6, None, [1.19, 0.0], yaw)).task.target_yaw_rad == yaw
 
     def test_the_pushed_face_is_the_face_towards_the_arm_wherever_the_cube_is_turned(self, settings):
         """Without side faces: a goal straight beside the cube is a side push for a cube square to the arm, and a

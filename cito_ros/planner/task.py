@@ -39,18 +39,23 @@ def turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
 
 
 QUARTER_TURN_RAD = math.pi / 2
-
-
-def cube_turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
-    """The turn (rad) from the cube at one yaw to the same cube at another, the shortest of its four equivalents:
-    in [-pi/4, pi/4]."""
-    return math.remainder(to_yaw_rad - from_yaw_rad, QUARTER_TURN_RAD)
+# an equivalent yaw replaces the requested one only where it is nearer by more than this: a goal an eighth of a turn
+# away (45 degrees, as asked to a few digits) is as near either way round, and is taken as asked
+EQUIVALENT_TIE_RAD = 1e-3
 
 
 def nearest_equivalent_yaw(target_yaw_rad: float, yaw_rad: float) -> float:
     """The yaw a quarter turn or several from target_yaw_rad (the same pose of the cube) nearest yaw_rad:
-    target_yaw_rad itself, to the last bit, where it is the nearest."""
-    return target_yaw_rad - QUARTER_TURN_RAD * round((target_yaw_rad - yaw_rad) / QUARTER_TURN_RAD)
+    target_yaw_rad itself, to the last bit, where none is nearer by more than EQUIVALENT_TIE_RAD."""
+    nearest = target_yaw_rad - QUARTER_TURN_RAD * round((target_yaw_rad - yaw_rad) / QUARTER_TURN_RAD)
+    nearer = abs(turn_rad(yaw_rad, target_yaw_rad)) - abs(turn_rad(yaw_rad, nearest)) > EQUIVALENT_TIE_RAD
+    return nearest if nearer else target_yaw_rad
+
+
+def cube_turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
+    """The turn (rad) from the cube at one yaw to the same cube at another, to the nearest of its four equivalents
+    (nearest_equivalent_yaw): within [-pi/4, pi/4] but for EQUIVALENT_TIE_RAD."""
+    return turn_rad(from_yaw_rad, nearest_equivalent_yaw(to_yaw_rad, from_yaw_rad))
 
 
 def equivalent_yaw_note(requested_yaw_rad: float, taken_yaw_rad: float) -> str:
