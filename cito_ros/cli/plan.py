@@ -48,8 +48,9 @@ def print_summary(result: PlanResult, requested_yaw_rad: float) -> None:
     print(f"reach zone         {zone(m.steady_reach_margin_m)}: the goal {100 * abs(m.steady_reach_margin_m):.1f} cm "
           f"{'inside' if m.steady_reach_margin_m >= 0 else 'beyond'} the steady push reach"
           + (f"; {zone_note(m.steady_reach_margin_m)}" if zone(m.steady_reach_margin_m) == "strike" else ""))
-    if equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad):
-        print(f"goal yaw           {equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad)}")
+    taken = equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad)
+    if taken:
+        print(f"goal yaw           {taken}")
     if motion.warnings:
         print(f"MuJoCo warnings    {motion.warnings}")
     if result.note and not m.success:

@@ -58,9 +58,14 @@ def cube_turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
     return turn_rad(from_yaw_rad, nearest_equivalent_yaw(to_yaw_rad, from_yaw_rad))
 
 
+def quarter_turns(requested_yaw_rad: float, taken_yaw_rad: float) -> int:
+    """How many quarter turns (counter-clockwise positive) the yaw aimed at (make_task) lies from the one requested."""
+    return round(turn_rad(requested_yaw_rad, taken_yaw_rad) / QUARTER_TURN_RAD)
+
+
 def equivalent_yaw_note(requested_yaw_rad: float, taken_yaw_rad: float) -> str:
     """What an answer says where the yaw aimed at is not the one requested (make_task), else ""."""
-    quarters = round(turn_rad(requested_yaw_rad, taken_yaw_rad) / QUARTER_TURN_RAD)
+    quarters = quarter_turns(requested_yaw_rad, taken_yaw_rad)
     return "" if quarters == 0 else (
         f"the goal yaw {requested_yaw_rad:.3f} rad was taken as {taken_yaw_rad:.3f} rad, {abs(quarters)} quarter "
         f"turn(s) {'counter-clockwise' if quarters > 0 else 'clockwise'} from it: the same pose of the cube, nearer "

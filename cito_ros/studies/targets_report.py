@@ -10,7 +10,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from cito_ros.planner.results import ZONES, phase_table, zone
-from cito_ros.planner.task import equivalent_yaw_note
+from cito_ros.planner.task import quarter_turns
 from cito_ros.studies.targets import FACES, OFFSET_AMPLITUDE_RAD
 
 
@@ -135,8 +135,7 @@ def report(records: list[dict[str, Any]], refused: list[str], where: dict[str, A
         lost = [r for r in failed if f"-{model}-none" in r["key"]]
         refused_here = [r for r in refusals if r["contact_model"] == model]
         goals = len(rows) + len(lost) + len(refused_here)
-        turned = [r for r in rows if equivalent_yaw_note(r.get("requested_yaw_rad", r["target_yaw_rad"]),
-                                                         r["target_yaw_rad"])]
+        turned = [r for r in rows if quarter_turns(r.get("requested_yaw_rad", r["target_yaw_rad"]), r["target_yaw_rad"])]
         per_model[model] = {
             "goals": goals,
             # goals whose yaw was taken as the cube's equivalent nearer its start (task.nearest_equivalent_yaw): none
