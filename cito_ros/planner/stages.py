@@ -62,6 +62,9 @@ class SolveClock:
         self.settings, self.callback = settings, callback
         self.started = time.perf_counter()
         self.iterations = 0
+        # the last iteration's wall clock, for the next stage's first, and the longest a stage took after its last
+        # iteration: what IterationMonitor leaves room for within the time limit
+        self.iteration_s = self.reserve_s = 0.0
         self._lock = threading.Lock()
 
     def spend(self) -> bool:
@@ -111,14 +114,16 @@ class StartRun:
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
                                    self.stop, self.clock.report, f"{self.prefix}{name}",
                                    problem.cost.virtual_force, None if problem.cost.virtual_force else goal,
-                                   self.clock.spend)
+                                   self.clock.spend, self.clock.iteration_s, self.clock.reserve_s)
         phases = problem.simulator.clock.read()
         outcome = solver.solve(problem, start, lower, upper, monitor)
+        self.clock.iteration_s = monitor.iteration_s
         phases, solved = problem.simulator.clock.read() - phases, time.perf_counter()
         self.log += outcome.log
         cost = float(problem.evaluate(outcome.z).cost)
         executed = execute(executor, problem.split(outcome.z)[0], self.clock.settings.tracking)
         ended = time.perf_counter()
+        self.clock.reserve_s = max(self.clock.reserve_s, ended - solved)
         iterations = outcome.log[-1].iteration - offset if outcome.log else 0  # the log starts at iteration 0
         self.records.append(StageRecord(
             f"{self.prefix}{name}", outcome.status, iterations, ended - began, cost, executed.position_error_m,
