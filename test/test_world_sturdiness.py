@@ -2,6 +2,7 @@
 the joint trajectory controller also brings the cube to the goal where its friction and mass are scaled. Real
 MuJoCo."""
 import math
+import os
 
 import numpy as np
 import pytest
@@ -100,3 +101,26 @@ def test_a_plan_says_whether_the_controller_brings_the_cube_to_the_goal_in_every
         assert result.sturdy == all(tolerance_ratio(*errors, checked.task) < 1.0
                                     for errors in again.world_tracked_errors)
         assert result.sturdy == (tolerance_m == 0.02), again.world_tracked_errors
+
+
+def test_worlds_tracked_side_by_side_give_the_errors_tracked_one_after_the_other(settings, monkeypatch):
+    """tracking.world_errors tracks as many worlds at a time as the machine has cores: the errors, and where
+    `stop` cuts the list, are those of one world after the other."""
+    settings = with_worlds(settings, (1.0, 0.5, 0.5, 1.5, 1.5), (1.0, 0.5, 2.0, 0.5, 2.0))
+    problem = build_problem(settings, PushRequest("vscm", 7)).problem
+    executor = physical_twin(problem, problem.cost)
+    reference = executor.trajectory(executor.with_torques(scripted_torques(executor, settings.stages.scripted,
+                                                                           settings.tracking)))
+
+    def errors(stop=None):
+        return tracking.world_errors(executor.simulator, executor.initial_state, reference, settings.tracking,
+                                     executor.task, (0.0, 0.0), stop)
+
+    side_by_side = errors()
+    pool, threads = tracking._world_pool()
+    assert threads == (os.cpu_count() or 1) and len(side_by_side) == 5
+    second = side_by_side[2]
+    cut = errors(lambda error: error == second)
+    monkeypatch.setattr(tracking, "_world_pool", lambda: (pool, 1))
+    assert errors() == side_by_side and len(set(side_by_side)) == 5
+    assert errors(lambda error: error == second) == cut == side_by_side[:3]

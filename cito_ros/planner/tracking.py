@@ -11,7 +11,9 @@ where it stops.
 """
 from __future__ import annotations
 
+import concurrent.futures
 import math
+import os
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -95,15 +97,35 @@ def world_errors(simulator: Simulator, initial_state: np.ndarray, reference: Joi
     to them in its own too (a plan the executor's servo tracked to 0.24 rad off in the model was taken). With
     `stop`, the worlds after the first whose errors it holds for are not tracked (a caller that rejects the plan
     there needs no more)."""
+    worlds = [simulator.in_world(friction, mass) for friction, mass in zip(gains.world_friction_scales,
+                                                                           gains.world_mass_scales)
+              if not (friction == 1.0 and mass == 1.0)]
+
+    def errors_in(world: Simulator) -> tuple[float, float]:
+        return rest_errors(world, track(world, initial_state, reference, gains).final_state, task, gains)
+
+    # as many worlds at a time as the pool has threads (the native tracking runs without the GIL): the same
+    # errors as one after the other, a world after the first that `stop` holds for tracked and left out
+    pool, threads = _world_pool()
     errors = []
-    for friction, mass in zip(gains.world_friction_scales, gains.world_mass_scales):
-        if friction == 1.0 and mass == 1.0:
-            continue
-        world = simulator.in_world(friction, mass)
-        errors.append(rest_errors(world, track(world, initial_state, reference, gains).final_state, task, gains))
-        if stop is not None and stop(errors[-1]):
-            break
+    for first in range(0, len(worlds), threads):
+        for error in pool.map(errors_in, worlds[first:first + threads]):
+            errors.append(error)
+            if stop is not None and stop(error):
+                return [nominal, *errors]
     return [nominal, *errors] if errors else []
+
+
+_WORLD_POOLS: dict[int, concurrent.futures.ThreadPoolExecutor] = {}
+
+
+def _world_pool() -> tuple[concurrent.futures.ThreadPoolExecutor, int]:
+    """This process's threads for world_errors, one per core, and how many (a forked process gets its own: its
+    parent's threads are not in it)."""
+    pid, threads = os.getpid(), os.cpu_count() or 1
+    if pid not in _WORLD_POOLS:
+        _WORLD_POOLS[pid] = concurrent.futures.ThreadPoolExecutor(threads, thread_name_prefix="cito_world")
+    return _WORLD_POOLS[pid], threads
 
 
 def errors_at_rest(held: Trajectory | None, task) -> tuple[float, float]:
