@@ -7,7 +7,7 @@ import pytest
 
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.task import equivalent_yaw_note
+from cito_ros.planner.task import aim_note, equivalent_yaw_note
 
 
 class TestBadRequests:
@@ -76,19 +76,44 @@ class TestReach:
 
     def test_a_turn_one_push_cannot_make_is_refused_with_how_much(self, settings):
         """A push turns the cube as it moves it, by at most the orientation tolerance plus
-        task.turn_per_push_rad_per_m per metre: a turn of 0.6 rad in place, or over 2 cm, is refused before anything
-        is solved (each ran to the time limit and missed); 0.6 rad over 8 cm and a turn within the tolerance in place
-        are posed; the same turns the other way round or a whole turn apart alike."""
-        k = settings.task.turn_per_push_rad_per_m
+        task.turn_per_push_rad_per_m per metre, over the push to the goal or to the aim past it (at most
+        task.aim_past_max_m): a turn of 0.6 rad in place, or over 2 cm, is refused before anything is solved (each
+        ran to the time limit and missed); 0.6 rad over 8 cm and a turn within the tolerance in place are posed; the
+        same turns the other way round or a whole turn apart alike."""
+        k, past_m = settings.task.turn_per_push_rad_per_m, settings.task.aim_past_max_m
         refused = (([0.99, 0.0], 0.6), ([0.99, 0.0], -0.6), ([1.01, 0.0], 0.6), ([1.01, 0.0], -0.6 + 2 * math.pi))
         for target, yaw in refused:
-            with pytest.raises(ValueError, match=rf"target turns the object by 0.60 rad over a "
-                                                 rf"{100 * (target[0] - 0.99):.1f} cm push: .* at most "
-                                                 rf"{0.15 + k * (target[0] - 0.99):.2f} rad"):
+            push_m = target[0] - 0.99 + past_m
+            with pytest.raises(ValueError, match=rf"target turns the object by 0.60 rad over a {100 * push_m:.1f} cm "
+                                                 rf"push \(aimed {100 * past_m:.1f} cm past the goal\): .* at most "
+                                                 rf"{0.15 + k * push_m:.2f} rad"):
                 build_problem(settings, PushRequest("vscm", 7, None, target, yaw))
         posed = (([0.99, 0.0], 0.1), ([1.07, 0.0], 0.6), ([1.07, 0.0], -0.6), ([1.07, 0.0], 2 * math.pi + 0.6))
         for target, yaw in posed:
             assert build_problem(settings, PushRequest("vscm", 7, None, target, yaw)).task is not None
+
+    def test_a_turn_at_the_cubes_place_is_aimed_past_the_goal_and_judged_at_the_goal(self, settings):
+        """A push turns the cube only as it moves it: a goal on the cube's place turned 0.2 rad (beyond the 0.15 rad
+        tolerance; refused as a turn in place before) is aimed (0.2 - 0.15) / task.aim_turn_rad_per_m past the goal
+        along the near face's push, the plan judged at the goal: executed, it ends within the tolerances of the goal,
+        and the answer says so. A turn more than one push makes even aimed task.aim_past_max_m past is refused, and a
+        goal far enough away for its turn is aimed at itself."""
+        limits = settings.task
+        task = build_problem(settings, PushRequest("vscm", 7, None, [0.99, 0.0], 0.2)).task
+        past_m = (0.2 - limits.success_orientation_error_rad) / limits.aim_turn_rad_per_m
+        assert task.target_position_m[:2].tolist() == [0.99, 0.0]
+        assert task.aim_m[:2] == pytest.approx([0.99 + past_m, 0.0])
+        assert build_problem(settings, PushRequest("vscm", 7, None, [1.07, 0.0], 0.6)).task.aim_position_m is None
+        with pytest.raises(ValueError, match=r"turns the object by 0.35 rad over a 1.2 cm push \(aimed 1.2 cm past the "
+                                             r"goal\): .* at most 0.30 rad there .* aimed at most 1.2 cm past the goal"):
+            build_problem(settings, PushRequest("vscm", 7, None, [0.99, 0.0], 0.35))
+        result = plan_push("vscm", 7, target_position_m=[0.99, 0.0], target_yaw_rad=0.2,
+                           settings=settings.with_overrides({"solver.time_limit_s": 30.0}))
+        end = result.executed_motion.object_position_m[-1, :2]
+        assert result.metrics.success
+        assert result.metrics.position_error_m == pytest.approx(float(np.linalg.norm(end - [0.99, 0.0])), abs=1e-4)
+        assert np.linalg.norm(end - [0.99, 0.0]) > 1e-3  # it moved: pushed, not held
+        assert "aimed 0.6 cm past the goal" in aim_note(result.target_position_m, result.aim_position_m)
 
     def test_a_goal_yaw_counts_modulo_a_quarter_turn_and_the_answer_says_which_it_aimed_at(self, settings):
         """The cube turned by a quarter turn is the same cube: a turn of 1.2 rad over 8 cm (refused when the goal's

@@ -165,6 +165,9 @@ def test_the_any_distribution_draws_goals_all_over_the_region_each_labelled_with
     assert {goal.face for goal in beside} == {"side"}  # 50-130 degrees either side of +x: a side face's
     assert {np.sign(goal.direction_rad) for goal in beside} == {-1.0, 1.0}
     assert all(0.03 <= goal.push_m <= 0.25 and abs(goal.target_yaw_rad) <= 0.3 for goal in beside)
+    turns = targets.draw_goals(60, 0, settings, "turn")[0]  # at the cube's place, turned beyond the tolerance
+    assert all(goal.push_m <= 0.015 and 0.16 <= abs(goal.target_yaw_rad) <= 0.30 for goal in turns)
+    assert {np.sign(goal.target_yaw_rad) for goal in turns} == {-1.0, 1.0} and len({g.face for g in turns}) == 3
     with pytest.raises(ValueError, match="unknown goal distribution 'everywhere'"):
         targets.draw_goals(1, 0, settings, "everywhere")
 

@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     targets.add_argument("--distribution", choices=DISTRIBUTIONS, default="forward",
                          help="forward: pushes within 35 degrees of +x (the default); beside: 3-25 cm at 50-130 "
                               "degrees either side of +x; any: anywhere on the table the arm can push the cube to, "
-                              "any yaw")
+                              "any yaw; turn: within 1.5 cm of the cube, turned 0.16-0.30 rad")
     targets.add_argument("--time-limit", type=float, default=None, metavar="S",
                          help="each solve's wall-clock limit (solver.time_limit_s; default: the settings')")
     targets.add_argument("--seed", type=int, default=0)

@@ -22,7 +22,7 @@ from cito_ros.cli.progress import advance, progress_bar  # noqa: E402
 from cito_ros.model.contact_models import CONTACT_MODELS  # noqa: E402
 from cito_ros.planner.plan import plan_push  # noqa: E402
 from cito_ros.planner.results import IterationLog, PlanResult, zone, zone_note  # noqa: E402
-from cito_ros.planner.task import equivalent_yaw_note  # noqa: E402
+from cito_ros.planner.task import aim_note, equivalent_yaw_note  # noqa: E402
 from cito_ros.settings import load_settings  # noqa: E402
 
 INVALID_REQUEST = "invalid_request"
@@ -51,6 +51,9 @@ def print_summary(result: PlanResult, requested_yaw_rad: float) -> None:
     taken = equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad)
     if taken:
         print(f"goal yaw           {taken}")
+    aimed = aim_note(result.target_position_m, result.aim_position_m)
+    if aimed:
+        print(f"aim                {aimed}")
     if motion.warnings:
         print(f"MuJoCo warnings    {motion.warnings}")
     if result.note and not m.success:

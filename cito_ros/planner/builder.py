@@ -17,6 +17,7 @@ from cito_ros.model.scene import TABLE_TOP_Z_M, Scene, start_configuration
 from cito_ros.model.simulator import Simulator
 from cito_ros.planner import push_limits
 from cito_ros.planner.problem import PushProblem, StageCost
+from cito_ros.planner.side_faces import NEAR, face_for
 from cito_ros.planner.task import PushTask, nearest_equivalent_yaw, turn_rad, yaw_of
 from cito_ros.settings import SceneConfig, Settings
 from cito_ros.settings.typed_config import require_finite
@@ -122,8 +123,9 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
       reaches only for an object within push_limits.pull_reach_m of the arm base);
     - one whose turn (to the goal yaw's equivalent nearest the object's, at most an eighth of a turn: make_task) is
       more than the orientation tolerance plus task.turn_per_push_rad_per_m times the distance the object's centre
-      moves: an off-centre push turns the object as it moves it, no push turns it in place, and in a sweep of single
-      pushes none turned it faster (docs/results.md: A turn one push cannot make is refused at once)."""
+      moves (to the aim past the goal, where make_task sets one): an off-centre push turns the object as it moves it,
+      no push turns it in place, and in a sweep of single pushes none turned it faster (docs/results.md: A turn one
+      push cannot make is refused at once)."""
     qpos = scene.object_qpos(initial_state)
     normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
     push_m = task.target_position_m[:2] - qpos[:2]
@@ -137,14 +139,17 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
                          f"a push on that face (or on a side face) moves the object away from the arm, never back; "
                          f"only a pull on its far face does, {pull}")
     turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
-    distance_m = float(np.linalg.norm(push_m))
+    distance_m = float(np.linalg.norm(task.aim_m[:2] - qpos[:2]))  # the push's: to the aim past the goal (make_task)
     limits = settings.task
     most_rad = limits.success_orientation_error_rad + limits.turn_per_push_rad_per_m * distance_m
     if turn > most_rad:
-        raise ValueError(f"target turns the object by {turn:.2f} rad over a {100 * distance_m:.1f} cm push: one "
-                         f"push on one of the object's faces turns it by at most {most_rad:.2f} rad there "
+        aimed = "" if task.aim_position_m is None else \
+            f" (aimed {100 * np.linalg.norm(task.aim_m[:2] - task.target_position_m[:2]):.1f} cm past the goal)"
+        raise ValueError(f"target turns the object by {turn:.2f} rad over a {100 * distance_m:.1f} cm push{aimed}: "
+                         f"one push on one of the object's faces turns it by at most {most_rad:.2f} rad there "
                          f"({limits.success_orientation_error_rad:g} rad plus {limits.turn_per_push_rad_per_m:g} rad "
-                         f"per metre pushed); a turn in place needs pushes on other faces")
+                         f"per metre pushed, aimed at most {100 * limits.aim_past_max_m:g} cm past the goal); a turn "
+                         f"in place needs pushes on other faces")
 
 
 def check_object_start(scene: Scene, start_q: np.ndarray) -> None:
@@ -202,4 +207,35 @@ def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target
         raise ValueError(f"target is {distance:.3f} m from the arm base, beyond the {reach:.3f} m the arm can push "
                          f"the object's centre to (the plate's reach at the object's height, plus the plate's "
                          f"radius and the object's half size)")
-    return task
+    aim = _aim_past(scene, qpos, task, settings)
+    if aim is None or np.linalg.norm(aim[:2]) > reach:
+        return task
+    return dataclasses.replace(task, aim_position_m=aim)
+
+
+def _aim_past(scene: Scene, qpos: np.ndarray, task: PushTask, settings: Settings) -> np.ndarray | None:
+    """Where a push aims past the goal, along the near face's inward normal, so that the object's centre moves along
+    that normal at least the goal's turn beyond the orientation tolerance over task.aim_turn_rad_per_m, but at most
+    task.aim_past_max_m past it: a push turns the object only as it moves it, and a goal near or at the object's
+    place turned further than that is otherwise a turn in place (refused, or a push that never moves it:
+    docs/results.md). None where no aim is needed, where the goal needs another face than the near face (more than
+    45 degrees off its normal and beyond the position tolerance), or where even the aim lies behind the near face
+    (a goal behind it, within the tolerance: the aim moves such a goal's push from backwards, which no push on that
+    face makes, to forwards); check_pushable judges the turn over the push to the aim."""
+    limits = settings.task
+    turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
+    needed_m = (turn - limits.success_orientation_error_rad) / limits.aim_turn_rad_per_m
+    normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
+    normal = normal / np.linalg.norm(normal)
+    # what turns the cube is its push along the normal: a goal beside the cube is no push along it (near-face
+    # pushes towards such goals never moved the cube: docs/results.md, Turns at the cube's place)
+    push = task.target_position_m[:2] - qpos[:2]
+    along_m = float(push @ normal)
+    beside = np.linalg.norm(push) > limits.success_position_error_m and \
+        face_for(qpos[:2], yaw_of(qpos[3:7]), task.target_position_m[:2]) != NEAR  # a side face's push, or a pull
+    if limits.aim_past_max_m <= 0.0 or along_m >= needed_m or beside:
+        return None
+    past_m = min(needed_m - along_m, limits.aim_past_max_m)
+    if along_m + past_m <= 0.0:  # a goal so far behind the face that the aim is behind it too: no push turns it
+        return None
+    return np.r_[task.target_position_m[:2] + past_m * normal, task.target_position_m[2]]

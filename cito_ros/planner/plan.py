@@ -150,4 +150,5 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         sturdy=bool(outcome.executed is not None and outcome.executed.world_tracked_errors
                     and outcome.executed.worst_world(settings.task) < 1.0),
         note=outcome.note,
+        aim_position_m=None if task.aim_position_m is None else task.aim_position_m.copy(),
     )

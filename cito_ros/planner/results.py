@@ -238,6 +238,7 @@ class PlanResult:
     sturdy: bool = False             # tracked to within the task's tolerances in the model and in every world of
                                      # tracking.world_*_scales, as the search judged it (False: other worlds not asked)
     note: str = ""                   # what the search could not try, which an answer that misses says
+    aim_position_m: np.ndarray | None = None  # where the pushes aimed past the goal (PushTask.aim_position_m)
 
     @property
     def executed_motion(self) -> Trajectory:
@@ -264,6 +265,7 @@ class PlanResult:
             "initial_distance_m": self.initial_distance_m,
             "target_position_m": self.target_position_m.tolist(),
             "target_yaw_rad": self.target_yaw_rad,
+            "aim_position_m": None if self.aim_position_m is None else self.aim_position_m.tolist(),
             "object_start_position_m": self.trajectory.object_position_m[0].tolist(),
             "object_start_yaw_rad": self.scene.config.object.yaw_rad,
             **self.metrics.as_dict(),

@@ -68,13 +68,13 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
     plate = data.site_xpos[scene.robot_site_id].copy()
     object_qpos = scene.object_qpos(problem.initial_state)
     start = object_qpos[:3]
-    push = problem.task.target_position_m[:2] - start[:2]
+    push = problem.task.aim_m[:2] - start[:2]
     # a target on the object's start (a turn in place): the plate comes up to the face along its normal
     direction = push if np.linalg.norm(push) > 1e-9 else data.site_xmat[scene.robot_site_id].reshape(3, 3)[:2, 2]
     along = np.r_[direction / np.linalg.norm(direction), 0.0]
     face0, turn = 0.0, 0.0
     follow_face = script.follow_face and push_limits.steady_reach_margin_m(
-        scene, problem.initial_state, problem.task.target_position_m) >= script.follow_face_margin_m
+        scene, problem.initial_state, problem.task.aim_m) >= script.follow_face_margin_m
     if follow_face:
         yaw0 = yaw_of(object_qpos[3:7])
         quarter = round(turn_rad(yaw0, math.atan2(direction[1], direction[0])) / (math.pi / 2))
@@ -84,7 +84,7 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
     behind = scene.object_half_size[0] + scene.plate_half_thickness_m
     lift = np.array([0.0, 0.0, script.contact_height_m])
     before = start - (behind + script.standoff_m) * along + lift
-    after = problem.task.target_position_m - behind * along + lift
+    after = problem.task.aim_m - behind * along + lift
     T = simulator.n_steps
     path, normals = np.empty((T + 1, 3)), np.tile(along, (T + 1, 1))
     for t in range(T + 1):
@@ -95,7 +95,7 @@ def plate_path(problem, script: ScriptedSettings) -> tuple[np.ndarray, np.ndarra
         sigma = _minimum_jerk((s - script.approach_fraction) / (script.push_end_fraction - script.approach_fraction))
         if follow_face:  # the object's centre and yaw from the start's to the target's, the plate behind
             normals[t] = _along(face0 + sigma * turn)
-            path[t] = start + sigma * (problem.task.target_position_m - start) + lift - \
+            path[t] = start + sigma * (problem.task.aim_m - start) + lift - \
                 (behind + (1.0 - sigma) * script.standoff_m) * normals[t]
         else:
             path[t] = before + (after - before) * sigma

@@ -155,7 +155,7 @@ def plate_tilt(scene, initial_state: np.ndarray, task, face: int, side: SideFace
     mujoco.mj_setState(scene.model, data, initial_state, FULL_PHYSICS)
     q0 = data.qpos[scene.arm_qpos_adr].copy()
     for tilt in side.tilts_rad:
-        geometry = SideGeometry(scene, initial_state, task.target_position_m, task.target_yaw_rad, face, side, tilt)
+        geometry = SideGeometry(scene, initial_state, task.aim_m, task.target_yaw_rad, face, side, tilt)
         q, short_start = _plate_pose_q(scene, data, geometry.contact, geometry.normal, q0, margin_rad,
                                        side.normal_weight, side.table_clearance_m)
         _, short_end = _plate_pose_q(scene, data, geometry.contact + geometry.push, geometry.normal, q, margin_rad,
@@ -177,7 +177,7 @@ def side_joint_path(problem, script: ScriptedSettings, face: int, tilt_rad: floa
     side = script.side_faces
     scene = problem.simulator.scene
     model, site, qadr, dofs = scene.model, scene.robot_site_id, scene.arm_qpos_adr, scene.arm_dof_adr
-    geometry = SideGeometry(scene, problem.initial_state, problem.task.target_position_m, problem.task.target_yaw_rad,
+    geometry = SideGeometry(scene, problem.initial_state, problem.task.aim_m, problem.task.target_yaw_rad,
                             face, side, tilt_rad, offset_scale)
     data = _at_start(problem)
     q0 = data.qpos[qadr].copy()

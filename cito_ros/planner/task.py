@@ -86,19 +86,31 @@ def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PushTask:
-    """Where the object should end: position (m, world) and yaw (rad) about world z."""
+    """Where the object should end: position (m, world) and yaw (rad) about world z; and where the pushes aim
+    (the terminal cost, the scripts): the target, or a point past it along the push (`aim_position_m`, make_task)
+    where the turn needs a longer push than the target is away. A plan is judged at the target (pose_error)."""
 
     target_position_m: np.ndarray
     target_yaw_rad: float = 0.0
+    aim_position_m: np.ndarray | None = None
 
     def __post_init__(self):
-        position = np.asarray(self.target_position_m, dtype=float)
-        if position.shape != (3,):
-            raise ValueError(f"target position must have 3 coordinates, got shape {position.shape}")
-        if not np.all(np.isfinite(position)):
-            raise ValueError("target position contains NaN or Inf")
-        object.__setattr__(self, "target_position_m", position)
+        for name in ("target_position_m", "aim_position_m"):
+            if name == "aim_position_m" and self.aim_position_m is None:
+                continue
+            position = np.asarray(getattr(self, name), dtype=float)
+            if position.shape != (3,):
+                raise ValueError(f"{name.removesuffix('_position_m')} position must have 3 coordinates, got shape "
+                                 f"{position.shape}")
+            if not np.all(np.isfinite(position)):
+                raise ValueError(f"{name.removesuffix('_position_m')} position contains NaN or Inf")
+            object.__setattr__(self, name, position)
         object.__setattr__(self, "target_yaw_rad", require_finite("target yaw", self.target_yaw_rad))
+
+    @property
+    def aim_m(self) -> np.ndarray:
+        """Where the pushes aim: aim_position_m, or the target."""
+        return self.target_position_m if self.aim_position_m is None else self.aim_position_m
 
     @property
     def target_rotation(self) -> np.ndarray:
@@ -117,3 +129,16 @@ class PushTask:
     def pose_error(self, object_qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position error vector (m) and Euler-angle error (rad) of an object pose (x y z qw qx qy qz)."""
         return object_qpos[:3] - self.target_position_m, self.angle_error(object_qpos[3:7])
+
+    def aim_error(self, object_qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """pose_error against the aim (aim_m): what the pushes minimize."""
+        return object_qpos[:3] - self.aim_m, self.angle_error(object_qpos[3:7])
+
+
+def aim_note(target_position_m, aim_position_m) -> str:
+    """What an answer says where the pushes aimed past the goal (PushTask.aim_position_m), else ""."""
+    if aim_position_m is None:
+        return ""
+    past_m = float(np.linalg.norm(np.asarray(aim_position_m)[:2] - np.asarray(target_position_m)[:2]))
+    return (f"the push aimed {100 * past_m:.1f} cm past the goal along the push: a push turns the cube only as it "
+            f"moves it, and the goal's turn needs a push that long (judged at the goal)")

@@ -49,6 +49,12 @@ class TaskSettings:
     turn_per_push_rad_per_m: float = setting("one push on the pushed face turns the object by at most "
                                              "success_orientation_error_rad plus this much per metre its centre moves: "
                                              "a goal that needs more is refused at once (rad/m)", positive=True)
+    aim_turn_rad_per_m: float = setting(
+        "a goal whose turn beyond success_orientation_error_rad is more than this per metre of its distance from the "
+        "object (a turn near or at the object's place) is aimed past, along the near face's push, as far as this "
+        "needs (rad/m; below turn_per_push_rad_per_m: at that bound few pushes succeed)", positive=True)
+    aim_past_max_m: float = setting("how far past the goal a push aims at most (m; within success_position_error_m: "
+                                    "the plan is judged at the goal); 0: never", minimum=0.0)
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """`cito-bench targets`: seeded random pushes, solved by each contact model, judged by execution.
 
-ROS-free. Goals are drawn from a seeded generator, in one of three distributions (DISTRIBUTIONS), all
+ROS-free. Goals are drawn from a seeded generator, in one of four distributions (DISTRIBUTIONS), all
 from the start pose q0(beta) for beta uniform in [4, 7] (initial distances 0.11-0.45 m):
 
 - forward: a push of 5-35 cm in a direction within +-35 degrees of +x from the cube's start, a goal
@@ -9,7 +9,10 @@ from the start pose q0(beta) for beta uniform in [4, 7] (initial distances 0.11-
   (mostly a side face's, cito_ros.planner.side_faces), a goal yaw within +-0.3 rad;
 - any: a goal anywhere on the table that the arm can push the cube to (the table top, the cube
   inside it, within the push reach of the arm base: the region the planner's checks accept, drawn
-  in the report), a goal yaw in [-pi, pi).
+  in the report), a goal yaw in [-pi, pi);
+- turn: a goal within 1.5 cm of the cube's start, in any direction, turned 0.16-0.30 rad either way: a turn at
+  the cube's place, beyond the orientation tolerance, which one push makes only aimed past the goal
+  (cito_ros.planner.builder: task.aim_past_max_m).
 
 A draw the planner would refuse (off the table, beyond the arm's reach) is drawn again and counted.
 Every goal is labelled with the face of the cube a push towards it needs (`face_needed`). Every plan
@@ -43,7 +46,9 @@ YAW_RANGE_RAD = 0.5
 BESIDE_PUSH_RANGE_M = (0.03, 0.25)
 BESIDE_DIRECTION_RANGE_RAD = (math.radians(50.0), math.radians(130.0))
 BESIDE_YAW_RANGE_RAD = 0.3
-DISTRIBUTIONS = ("forward", "beside", "any")
+TURN_PUSH_RANGE_M = (0.0, 0.015)
+TURN_YAW_RANGE_RAD = (0.16, 0.30)
+DISTRIBUTIONS = ("forward", "beside", "any", "turn")
 FACES = ("near", "side", "far")
 
 
@@ -101,6 +106,10 @@ def draw_goals(n: int, seed: int, settings: Settings | None = None, distribution
             push = float(rng.uniform(*BESIDE_PUSH_RANGE_M))
             direction = float(rng.choice((-1.0, 1.0)) * rng.uniform(*BESIDE_DIRECTION_RANGE_RAD))
             yaw = float(rng.uniform(-BESIDE_YAW_RANGE_RAD, BESIDE_YAW_RANGE_RAD))
+        elif distribution == "turn":
+            push = float(rng.uniform(*TURN_PUSH_RANGE_M))
+            direction = float(rng.uniform(-math.pi, math.pi))
+            yaw = yaw0 + float(rng.choice((-1.0, 1.0)) * rng.uniform(*TURN_YAW_RANGE_RAD))
         else:  # the whole table top the cube fits on; make_task refuses what is beyond the arm's push reach
             target = tuple(float(v) for v in rng.uniform(where["table_low_m"], where["table_high_m"]))
             yaw = float(rng.uniform(-math.pi, math.pi))

@@ -84,7 +84,7 @@ class PushProblem(DecisionLayout, Residuals, ProblemDerivatives):
         self.initial_guess = per_knot(np.zeros(self.n_joints), [v.initial for v in self.variables])
 
         self.initial_object_position = self.scene.object_qpos(self.initial_state)[:3].copy()
-        self.initial_position_error_m = float(np.linalg.norm(self.initial_object_position - task.target_position_m))
+        self.initial_position_error_m = float(np.linalg.norm(self.initial_object_position - task.aim_m))
         self.position_scale_min_m = position_error_scale_min_m
         self.position_scale = max(self.initial_position_error_m, position_error_scale_min_m)
 

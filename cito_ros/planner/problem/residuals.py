@@ -59,12 +59,13 @@ class Residuals:
     def _terminal_residuals(self, final_state: np.ndarray,
                             derivatives: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Residuals of the final state, and (with `derivatives`, else None) their derivatives with respect to
-        it (tangent space): position (3) and Euler angles (3) against the target, then the object's velocity
-        (6), then the joint speeds beyond their margin (7: the running term sees the steps' start states only)."""
+        it (tangent space): position (3) and Euler angles (3) against the aim (PushTask.aim_m), then the object's
+        velocity (6), then the joint speeds beyond their margin (7: the running term sees the steps' start states
+        only)."""
         w, c, nv = self.weights, self.cost, self.scene.model.nv
         dof = self.scene.object_dof_adr
         object_qpos = self.scene.object_qpos(final_state)
-        position_error, angle_error = self.task.pose_error(object_qpos)
+        position_error, angle_error = self.task.aim_error(object_qpos)
         position_root, angle_root = math.sqrt(w.w1) / self.position_scale, math.sqrt(w.w2)
         rows = 6 + (6 if c.object_velocity else 0) + (7 if c.joint_speed else 0)
         residuals = np.zeros(rows)
@@ -170,13 +171,6 @@ class Residuals:
 
     def signed_distance(self, sensordata: np.ndarray) -> np.ndarray:
         return self.scene.signed_distance_from_local(sensordata[..., self.local_rows])
-
-    def terminal_cost(self, object_qpos: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        """The paper's final cost c_f, the position error vector (m) and the Euler-angle error (rad)."""
-        position_error, angle_error = self.task.pose_error(object_qpos)
-        cost = (self.weights.w1 * float(np.sum((position_error / self.position_scale) ** 2))
-                + self.weights.w2 * float(np.sum(angle_error ** 2)))
-        return cost, position_error, angle_error
 
     def _outputs(self, states: np.ndarray, sensordata: np.ndarray, variables: np.ndarray):
         """Residual blocks (terminal, running, variables), constraints and knot mean signed distances."""
