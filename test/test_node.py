@@ -100,7 +100,7 @@ BAD_REQUESTS = {
     "beyond reach": (request(x=1.25, y=0.4), "beyond the 1.249 m the arm can push"),
     "pull back": (request(x=0.89), "target is 10.0 cm behind the object's pushed face"),
     "turn in place": (request(x=0.99, q=(0.0, 0.0, math.sin(0.3), math.cos(0.3))),
-                      "target turns the object by 0.60 rad over a 0.0 cm push"),
+                      "target turns the object by 0.60 rad over a 1.2 cm push (aimed 1.2 cm past the goal)"),
     "negative time limit": (request(time_limit=-1.0), "time_limit_s must be a non-negative number"),
     "tilted object": (request(object_pose=(0.99, 0.0, 0.1, (0.0, 0.01, 0.0, 1.0))), "object_pose.orientation must be "
                       "a rotation about z"),
