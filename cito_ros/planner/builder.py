@@ -18,7 +18,7 @@ from cito_ros.model.simulator import Simulator
 from cito_ros.planner import push_limits
 from cito_ros.planner.problem import PushProblem, StageCost
 from cito_ros.planner.side_faces import NEAR, face_for
-from cito_ros.planner.task import PushTask, nearest_equivalent_yaw, turn_rad, yaw_of
+from cito_ros.planner.task import PushTask, aim_past_m, nearest_equivalent_yaw, turn_rad, yaw_of
 from cito_ros.settings import SceneConfig, Settings
 from cito_ros.settings.typed_config import require_finite
 
@@ -144,7 +144,7 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
     most_rad = limits.success_orientation_error_rad + limits.turn_per_push_rad_per_m * distance_m
     if turn > most_rad:
         aimed = "" if task.aim_position_m is None else \
-            f" (aimed {100 * np.linalg.norm(task.aim_m[:2] - task.target_position_m[:2]):.1f} cm past the goal)"
+            f" (aimed {100 * aim_past_m(task.target_position_m, task.aim_position_m):.1f} cm past the goal)"
         raise ValueError(f"target turns the object by {turn:.2f} rad over a {100 * distance_m:.1f} cm push{aimed}: "
                          f"one push on one of the object's faces turns it by at most {most_rad:.2f} rad there "
                          f"({limits.success_orientation_error_rad:g} rad plus {limits.turn_per_push_rad_per_m:g} rad "
@@ -208,9 +208,7 @@ def make_task(scene: Scene, initial_state: np.ndarray, target_position_m, target
                          f"the object's centre to (the plate's reach at the object's height, plus the plate's "
                          f"radius and the object's half size)")
     aim = _aim_past(scene, qpos, task, settings)
-    if aim is None or np.linalg.norm(aim[:2]) > reach:
-        return task
-    return dataclasses.replace(task, aim_position_m=aim)
+    return task if aim is None else dataclasses.replace(task, aim_position_m=aim)
 
 
 def _aim_past(scene: Scene, qpos: np.ndarray, task: PushTask, settings: Settings) -> np.ndarray | None:
@@ -219,9 +217,9 @@ def _aim_past(scene: Scene, qpos: np.ndarray, task: PushTask, settings: Settings
     task.aim_past_max_m past it: a push turns the object only as it moves it, and a goal near or at the object's
     place turned further than that is otherwise a turn in place (refused, or a push that never moves it:
     docs/results.md). None where no aim is needed, where the goal needs another face than the near face (more than
-    45 degrees off its normal and beyond the position tolerance), or where even the aim lies behind the near face
-    (a goal behind it, within the tolerance: the aim moves such a goal's push from backwards, which no push on that
-    face makes, to forwards); check_pushable judges the turn over the push to the aim."""
+    45 degrees off its normal and beyond the position tolerance), where even the aim lies behind the near face (a
+    goal behind it, within the tolerance: the aim moves such a goal's push from backwards, which no push on that
+    face makes, to forwards), or beyond the push reach; check_pushable judges the turn over the push to the aim."""
     limits = settings.task
     turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
     needed_m = (turn - limits.success_orientation_error_rad) / limits.aim_turn_rad_per_m
@@ -236,6 +234,7 @@ def _aim_past(scene: Scene, qpos: np.ndarray, task: PushTask, settings: Settings
     if limits.aim_past_max_m <= 0.0 or along_m >= needed_m or beside:
         return None
     past_m = min(needed_m - along_m, limits.aim_past_max_m)
-    if along_m + past_m <= 0.0:  # a goal so far behind the face that the aim is behind it too: no push turns it
+    aim = task.target_position_m[:2] + past_m * normal
+    if along_m + past_m <= 0.0 or np.linalg.norm(aim) > scene.push_reach_m():  # behind the face too, or unreachable
         return None
-    return np.r_[task.target_position_m[:2] + past_m * normal, task.target_position_m[2]]
+    return np.r_[aim, task.target_position_m[2]]

@@ -95,16 +95,9 @@ class PushTask:
     aim_position_m: np.ndarray | None = None
 
     def __post_init__(self):
-        for name in ("target_position_m", "aim_position_m"):
-            if name == "aim_position_m" and self.aim_position_m is None:
-                continue
-            position = np.asarray(getattr(self, name), dtype=float)
-            if position.shape != (3,):
-                raise ValueError(f"{name.removesuffix('_position_m')} position must have 3 coordinates, got shape "
-                                 f"{position.shape}")
-            if not np.all(np.isfinite(position)):
-                raise ValueError(f"{name.removesuffix('_position_m')} position contains NaN or Inf")
-            object.__setattr__(self, name, position)
+        object.__setattr__(self, "target_position_m", _position("target", self.target_position_m))
+        if self.aim_position_m is not None:
+            object.__setattr__(self, "aim_position_m", _position("aim", self.aim_position_m))
         object.__setattr__(self, "target_yaw_rad", require_finite("target yaw", self.target_yaw_rad))
 
     @property
@@ -135,10 +128,25 @@ class PushTask:
         return object_qpos[:3] - self.aim_m, self.angle_error(object_qpos[3:7])
 
 
+def _position(name: str, value) -> np.ndarray:
+    position = np.asarray(value, dtype=float)
+    if position.shape != (3,):
+        raise ValueError(f"{name} position must have 3 coordinates, got shape {position.shape}")
+    if not np.all(np.isfinite(position)):
+        raise ValueError(f"{name} position contains NaN or Inf")
+    return position
+
+
+def aim_past_m(target_position_m, aim_position_m) -> float:
+    """How far past the goal the pushes aimed (PushTask.aim_position_m; None: 0)."""
+    return 0.0 if aim_position_m is None else \
+        float(np.linalg.norm(np.asarray(aim_position_m)[:2] - np.asarray(target_position_m)[:2]))
+
+
 def aim_note(target_position_m, aim_position_m) -> str:
     """What an answer says where the pushes aimed past the goal (PushTask.aim_position_m), else ""."""
     if aim_position_m is None:
         return ""
-    past_m = float(np.linalg.norm(np.asarray(aim_position_m)[:2] - np.asarray(target_position_m)[:2]))
-    return (f"the push aimed {100 * past_m:.1f} cm past the goal along the push: a push turns the cube only as it "
-            f"moves it, and the goal's turn needs a push that long (judged at the goal)")
+    return (f"the push aimed {100 * aim_past_m(target_position_m, aim_position_m):.1f} cm past the goal along the "
+            f"push: a push turns the cube only as it moves it, and the goal's turn needs a push that long (judged at "
+            f"the goal)")
