@@ -9,6 +9,7 @@ the same dynamics.
 """
 from __future__ import annotations
 
+import functools
 import weakref
 from dataclasses import dataclass, field
 
@@ -102,10 +103,18 @@ class Simulator:
         self.nthread = nthread
         self.nstate = mujoco.mj_stateSize(self.model, FULL_PHYSICS)
         self._serial = mj_rollout.Rollout(nthread=0)
-        self._pool = mj_rollout.Rollout(nthread=nthread) if nthread > 1 else self._serial
-        self._data = [mujoco.MjData(self.model) for _ in range(nthread)]
         self.clock = PhaseClock()  # the time of the rollouts and linearizations on this simulator
         self._worlds: dict[tuple[float, float], Simulator] = {}
+
+    @functools.cached_property
+    def _pool(self) -> mj_rollout.Rollout:
+        return mj_rollout.Rollout(nthread=self.nthread) if self.nthread > 1 else self._serial
+
+    @functools.cached_property
+    def _data(self) -> list[mujoco.MjData]:
+        # made on the first rollout here: the simulators of the worlds a plan is tracked in never roll out (the
+        # tracking has its own), and making their mjData was 3 of a replan's 100 ms
+        return [mujoco.MjData(self.model) for _ in range(self.nthread)]
 
     def in_world(self, friction_scale: float, mass_scale: float) -> Simulator:
         """This simulator where the object's friction and mass are these times the model's (one thread; built

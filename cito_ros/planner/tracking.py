@@ -14,6 +14,8 @@ from __future__ import annotations
 import concurrent.futures
 import math
 import os
+import threading
+import weakref
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -128,6 +130,18 @@ def _world_pool() -> tuple[concurrent.futures.ThreadPoolExecutor, int]:
     return _WORLD_POOLS[pid], threads
 
 
+_SCRATCH = threading.local()
+
+
+def _scratch_data(scene) -> mujoco.MjData:
+    """This thread's mjData for the scene's model: cito_track resets it as it begins (as good as a fresh one), and
+    starts and worlds run side by side, one thread each (a fresh one per motion was 3 of a replan's 100 ms)."""
+    datas = _SCRATCH.__dict__.setdefault("datas", weakref.WeakKeyDictionary())
+    if scene not in datas:
+        datas[scene] = mujoco.MjData(scene.model)
+    return datas[scene]
+
+
 def errors_at_rest(held: Trajectory | None, task) -> tuple[float, float]:
     """Position (m) and orientation (rad) error norms of the object against `task` at the end of a
     held_motion: where the object ends. NaN without one, or when MuJoCo warned on the way (its automatic
@@ -173,7 +187,7 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
     indices = (np.asarray(a, dtype=np.int32) for a in (scene.arm_qpos_adr, scene.arm_dof_adr, scene.motor_ids))
     floats = (np.ascontiguousarray(a, dtype=float) for a in (initial_state, q_ref, qdot_ref, gains.kp, gains.kd,
                                                             scene.torque_limit))
-    data = mujoco.MjData(model)  # a fresh one per motion: starts may run side by side
+    data = _scratch_data(scene)
     _native.track(model._address, data._address, steps, len(scene.motor_ids), *floats, *indices, states, sensordata,
                   controls, warnings, None if feed_forward is None else np.ascontiguousarray(feed_forward, dtype=float),
                   gains.speed_guard * scene.velocity_limit if gains.speed_guard > 0 else None, gains.speed_horizon_s)

@@ -8,6 +8,7 @@ evaluation cache (the latest rollouts and everything computed from them).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -62,7 +63,6 @@ class PushProblem(DecisionLayout, Residuals, ProblemDerivatives):
         self.cost = cost
         self.weights = cost.weights
         self.derivative_settings = derivative_settings
-        model = self.scene.model
         self.n_knots, self.steps_per_knot, self.n_steps = simulator.n_knots, simulator.steps_per_knot, simulator.n_steps
         self.n_joints = len(ARM_JOINTS)
         # CCCM's slack eliminated: gamma is its only knot variable, and it has no constraints
@@ -104,8 +104,12 @@ class PushProblem(DecisionLayout, Residuals, ProblemDerivatives):
         low, high = self.scene.joint_range.T
         self.soft_joint_range = (low + cost.joint_position_margin_rad, high - cost.joint_position_margin_rad)
         self._cache: list[Evaluation] = []  # the latest evaluations (a solver's point and its trial)
-        # one mjData per linearization thread, owned here (the native code keeps none)
-        self._linearization_data = tuple(mujoco.MjData(model) for _ in range(derivative_settings.threads))
+
+    @functools.cached_property
+    def _linearization_data(self) -> tuple[mujoco.MjData, ...]:
+        # one mjData per linearization thread, owned here (the native code keeps none); made on the first
+        # linearization: a problem that is only evaluated (the replans' touch profile) needs none
+        return tuple(mujoco.MjData(self.scene.model) for _ in range(self.derivative_settings.threads))
 
     def residuals(self, z: np.ndarray) -> np.ndarray:
         """The residual vector r (the cost is r . r)."""
