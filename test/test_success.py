@@ -49,6 +49,21 @@ def test_each_gate_alone_fails_a_plan_and_says_so(passing, settings, gate, value
     assert len(reasons) == 1 and says in reasons[0]
 
 
+def test_a_plan_aimed_past_its_goal_ends_its_stages_at_the_goals_tolerances(settings):
+    """The stages end early within stages.goal_margin of the tolerances; a task aimed past its goal (a turn the
+    push can just make) ends them once its plan is within the tolerances, where the aim leaves it."""
+    task = build_problem(settings, PushRequest("vscm")).task
+    aimed = dataclasses.replace(task, aim_position_m=task.target_position_m + np.array([0.01, 0.0, 0.0]))
+    margin, position_m, orientation_rad = (settings.stages.goal_margin, settings.task.success_position_error_m,
+                                           settings.task.success_orientation_error_rad)
+    inside = Executed(0.9 * margin * position_m, 0.9 * margin * orientation_rad, 0.5, 0.0, 0.0)
+    beyond_margin = Executed(1.1 * margin * position_m, 0.9 * orientation_rad, 0.5, 0.0, 0.0)
+    beyond_tolerance = Executed(1.05 * position_m, 0.9 * orientation_rad, 0.5, 0.0, 0.0)
+    assert inside.reaches(settings, task) and inside.reaches(settings, aimed)
+    assert not beyond_margin.reaches(settings, task) and beyond_margin.reaches(settings, aimed)
+    assert not beyond_tolerance.reaches(settings, task) and not beyond_tolerance.reaches(settings, aimed)
+
+
 def test_the_ranking_puts_a_plan_beyond_the_limits_below_one_within_them(settings):
     """A candidate 0.1 % over a speed limit, or at the goal with the object still sliding, neither succeeds nor
     ends a start early, and ranks below a worse plan within the limits and at rest."""
@@ -56,9 +71,10 @@ def test_the_ranking_puts_a_plan_beyond_the_limits_below_one_within_them(setting
     too_fast = Executed(0.001, 0.01, 1.001, 0.0, 0.0, tracked_position_error_m=0.001)
     out_of_range = Executed(0.001, 0.01, 0.5, 1e-6, 0.0, tracked_position_error_m=0.001)
     sliding = Executed(0.001, 0.01, 0.5, 0.0, 0.01, tracked_position_error_m=0.001)
+    task = build_problem(settings, PushRequest("vscm")).task
     assert Executed.succeeds(within.rank(settings))
     for candidate in (too_fast, out_of_range, sliding):
-        assert not Executed.succeeds(candidate.rank(settings)) and not candidate.reaches(settings)
+        assert not Executed.succeeds(candidate.rank(settings)) and not candidate.reaches(settings, task)
         assert within.rank(settings) < candidate.rank(settings)
     assert sliding.rank(settings) < too_fast.rank(settings)  # within the limits comes first
 

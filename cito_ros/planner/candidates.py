@@ -22,6 +22,7 @@ import numpy as np
 from cito_ros.model.simulator import Trajectory
 from cito_ros.planner import results, tracking
 from cito_ros.planner.problem import PushProblem
+from cito_ros.planner.task import PushTask
 from cito_ros.settings import Settings, TrackingSettings
 
 
@@ -82,12 +83,20 @@ class Executed:
         beyond_limits, away, untrackable, fragile, _, _ = rank
         return not beyond_limits and not away and not untrackable and not fragile
 
-    def reaches(self, settings: Settings) -> bool:
-        """Whether it is at the goal with the margin that ends the stages early (stages.goal_margin):
-        within that fraction of the success tolerances, at rest and within the arm's limits."""
+    def reaches(self, settings: Settings, task: PushTask) -> bool:
+        """Whether it is at the goal with the margin that ends the stages early (goal_margin): within that
+        fraction of the success tolerances, at rest and within the arm's limits."""
         return results.at_goal(self.position_error_m, self.orientation_error_rad, self.rest_object_speed_m_s,
-                               settings.task, settings.stages.goal_margin) and \
+                               settings.task, goal_margin(settings, task)) and \
             results.within_limits(self.max_joint_speed_ratio, self.joint_range_excess_rad)
+
+
+def goal_margin(settings: Settings, task: PushTask) -> float:
+    """The fraction of the success tolerances that ends a start's stages early: stages.goal_margin, or for a task
+    aimed past its goal (PushTask.aim_position_m) the whole tolerances. Its pushes are drawn to the aim, up to
+    task.aim_past_max_m past the goal and with a turn the push can just make, so its plans end 1 cm and 0.1 rad from
+    the goal: short of the margin, every start ran every stage to its last iteration."""
+    return 1.0 if task.aim_position_m is not None else settings.stages.goal_margin
 
 
 def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings) -> Executed:

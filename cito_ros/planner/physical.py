@@ -92,7 +92,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
         if outcome.status.interrupted:
             return True
         if index + 1 < scripts:
-            return succeeds(executed) and executed.reaches(settings)
+            return succeeds(executed) and executed.reaches(settings, outcome.executor.task)
         return any(succeeds(results[i][0]) for i in range(index + 1) if i in results)
 
     def succeeds(executed: Executed) -> bool:
@@ -249,7 +249,7 @@ def solve_start(clock: SolveClock, stop: StartStop, settings: Settings, override
         torques = problem.split(stage.z)[0]
         if best is None or result.rank(settings) < best[0].rank(settings):
             best = (result, torques, stage.status)
-        if result.reaches(settings):
+        if result.reaches(settings, executor.task):
             break
     executed, chosen, status = best
     if not discovered:  # no discovery: the plan under the contact model is the returned torques

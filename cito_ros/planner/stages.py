@@ -110,7 +110,7 @@ class StartRun:
 
         def goal(point) -> tuple[float, bool]:
             executed = judge(problem, point, self.clock.settings.tracking)
-            return executed.position_error_m, executed.reaches(self.clock.settings)
+            return executed.position_error_m, executed.reaches(self.clock.settings, problem.task)
         monitor = IterationMonitor(settings, self.clock.started, offset, solver.violation_tolerance,
                                    self.stop, self.clock.report, f"{self.prefix}{name}",
                                    problem.cost.virtual_force, None if problem.cost.virtual_force else goal,
