@@ -127,9 +127,8 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
       no push turns it in place, and in a sweep of single pushes none turned it faster (docs/results.md: A turn one
       push cannot make is refused at once)."""
     qpos = scene.object_qpos(initial_state)
-    normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
-    push_m = task.target_position_m[:2] - qpos[:2]
-    behind_m = -float(np.dot(push_m, normal / np.linalg.norm(normal)))
+    _, along_m, turn = _near_push(scene, qpos, task)
+    behind_m = -along_m
     if behind_m > settings.task.success_position_error_m:
         out_m, pull_m = float(np.hypot(*qpos[:2])), push_limits.pull_reach_m(scene)
         pull = f"and the plate can press that face, with the arm clear of the object, only for an object within " \
@@ -138,7 +137,6 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
         raise ValueError(f"target is {100 * behind_m:.1f} cm behind the object's pushed face (back towards the arm): "
                          f"a push on that face (or on a side face) moves the object away from the arm, never back; "
                          f"only a pull on its far face does, {pull}")
-    turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
     distance_m = float(np.linalg.norm(task.aim_m[:2] - qpos[:2]))  # the push's: to the aim past the goal (make_task)
     limits = settings.task
     most_rad = limits.success_orientation_error_rad + limits.turn_per_push_rad_per_m * distance_m
@@ -221,14 +219,11 @@ def _aim_past(scene: Scene, qpos: np.ndarray, task: PushTask, settings: Settings
     goal behind it, within the tolerance: the aim moves such a goal's push from backwards, which no push on that
     face makes, to forwards), or beyond the push reach; check_pushable judges the turn over the push to the aim."""
     limits = settings.task
-    turn = abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
+    normal, along_m, turn = _near_push(scene, qpos, task)
     needed_m = (turn - limits.success_orientation_error_rad) / limits.aim_turn_rad_per_m
-    normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
-    normal = normal / np.linalg.norm(normal)
     # what turns the cube is its push along the normal: a goal beside the cube is no push along it (near-face
     # pushes towards such goals never moved the cube: docs/results.md, Turns at the cube's place)
     push = task.target_position_m[:2] - qpos[:2]
-    along_m = float(push @ normal)
     beside = np.linalg.norm(push) > limits.success_position_error_m and \
         face_for(qpos[:2], yaw_of(qpos[3:7]), task.target_position_m[:2]) != NEAR  # a side face's push, or a pull
     if limits.aim_past_max_m <= 0.0 or along_m >= needed_m or beside:
@@ -238,3 +233,13 @@ def _aim_past(scene: Scene, qpos: np.ndarray, task: PushTask, settings: Settings
     if along_m + past_m <= 0.0 or np.linalg.norm(aim) > scene.push_reach_m():  # behind the face too, or unreachable
         return None
     return np.r_[aim, task.target_position_m[2]]
+
+
+def _near_push(scene: Scene, qpos: np.ndarray, task: PushTask) -> tuple[np.ndarray, float, float]:
+    """What a push on the near face is judged by (check_pushable, _aim_past): the face's inward unit normal (x, y),
+    how far the goal lies along it from the object's centre (m; negative: behind the face's push), and the size of
+    the goal's turn (rad)."""
+    normal = scene.inward_normals(qpos[None, 3:7])[0][:2]
+    normal = normal / np.linalg.norm(normal)
+    along_m = float((task.target_position_m[:2] - qpos[:2]) @ normal)
+    return normal, along_m, abs(turn_rad(yaw_of(qpos[3:7]), task.target_yaw_rad))
