@@ -140,6 +140,13 @@ def test_bench_hard_json(tmp_path):
     assert (tmp_path / "hard_cases.md").is_file() and (tmp_path / "hard_cases.csv").is_file()
 
 
+def test_bench_closed_loop_takes_a_fixed_compute_clock_only_in_process():
+    result = run("cito-bench", "closed-loop", "--ros", "--clock-s", "2", "0.1")
+    assert result.returncode == 2 and "only in process (not with --ros" in result.stderr
+    result = run("cito-bench", "closed-loop", "--clock-s", "2", "nan")
+    assert result.returncode == 2 and "two finite times of zero or more" in result.stderr
+
+
 def test_bench_hard_rejects_unknown_cases():
     result = run("cito-bench", "hard", "--cases", "moon_landing")
     assert result.returncode == 2 and "unknown cases ['moon_landing']" in result.stderr

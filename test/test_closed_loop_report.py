@@ -26,6 +26,17 @@ def test_the_closed_loop_report_counts_the_cubes_that_tipped_over_the_pushes_cut
         "steady reach." in closed_loop.markdown(summary)
     assert "Pushes cut short with the cube off their path (executor.off_path_m): 2, in 1 closed-loop episodes." in \
         closed_loop.markdown(summary)
+    assert "clock fixed" not in closed_loop.markdown(summary)  # measured compute times, the default
+
+
+def test_the_closed_loop_report_says_when_the_compute_times_were_fixed_not_measured():
+    record = {"world": "w", "mode": "closed_loop", "steady_reach_margin_m": 0.05, "success": True,
+              "success_tight": True, "position_error_m": 0.01, "max_joint_speed_ratio": 0.9, "pushes": 1,
+              "replans": 10, "replan_rate_hz": 10.0, "replan_compute_s": 0.1, "clock_s": {"plan": 2.0, "replan": 0.1}}
+    summary = closed_loop.report([record, record])
+    assert summary["clock_s"] == {"plan": 2.0, "replan": 0.1}
+    assert "Compute on the world's clock fixed, not measured (--clock-s): 2 s a plan, 0.1 s a replan" in \
+        closed_loop.markdown(summary)
 
 
 def test_the_closed_loop_report_splits_the_successes_by_the_first_push_s_sturdiness_and_names_the_misses_causes():

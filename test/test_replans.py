@@ -49,6 +49,14 @@ def test_a_plan_takes_effect_no_sooner_than_its_compute_time_after_the_state_it_
     assert active and all(t >= effective[id(policy)] for t, policy in active)
 
 
+def test_on_a_fixed_clock_a_plan_takes_effect_after_the_clocks_time_however_long_it_took_to_compute(settings):
+    """cito-bench closed-loop --clock-s: each plan costs the world's clock what the clock says, on a fast machine as
+    on a slow one."""
+    executor, world = started(settings)
+    work = work_in_line(executor, world.time_s, {"plan": 3.0, "replan": 0.1})
+    assert work.kind == "plan" and work.compute_s == 3.0 and work.effective_s == pytest.approx(world.time_s + 3.0)
+
+
 def test_a_push_is_replanned_while_it_runs_only_with_replans_on(settings):
     for replan in (False, True):
         executor, world = push_under_way(settings.with_overrides({"executor.replan": replan}))

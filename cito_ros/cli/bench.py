@@ -13,8 +13,10 @@
     cito-bench push-limits [--heights H ...] [--step M] [--json]   where a push that holds its height can leave the cube
     cito-bench round-trip [--n 20] [--seed S] [--json]   the node's answer time beyond the solve, and its bags
     cito-bench refusals [--n 10] [--json]         how soon a one-shot cito-plan refuses a goal, its start included
-    cito-bench closed-loop [--n 30] [--seed S] [--distribution D] [--ros] [--out DIR]   open and closed loop in
-                                                  mismatched worlds (in process; --ros: through the nodes)
+    cito-bench closed-loop [--n 30] [--seed S] [--distribution D] [--ros | --clock-s PLAN_S REPLAN_S] [--out DIR]
+                                                  open and closed loop in mismatched worlds (in process, each
+                                                  compute on the world's clock as measured or as --clock-s fixes
+                                                  it; --ros: through the nodes)
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -30,6 +32,7 @@ os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -194,6 +197,10 @@ def main(argv: list[str] | None = None) -> int:
     closed.add_argument("--out", type=Path, default=Path("out/closed_loop"),
                         help="reports, and each finished episode as it arrives (a rerun skips those)")
     closed.add_argument("--json", action="store_true", help="print the summary and every episode")
+    closed.add_argument("--clock-s", type=float, nargs=2, metavar=("PLAN_S", "REPLAN_S"), default=None,
+                        help="in process: each plan and replan takes this long on the world's clock instead of its "
+                             "measured compute time, so that the outcomes do not hang on the machine's speed "
+                             "(changes compared episode by episode)")
     add_sweep_options(closed)
     hashes = commands.add_parser("plan-hashes", help="the paper's cases and the first targets goals, by plan hash")
     hashes.add_argument("--goals", type=int, default=10, help="targets goals (seed 0), each with every model")
@@ -336,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
         from cito_ros.studies import closed_loop, targets as targets_module
 
         settings = load_settings()
+        if args.clock_s is not None and (args.ros or not all(math.isfinite(v) and v >= 0 for v in args.clock_s)):
+            parser.error("--clock-s takes two finite times of zero or more (s), and only in process (not with --ros: "
+                         f"a real clock), got {args.clock_s}{' with --ros' if args.ros else ''}")
         goals, _ = targets_module.draw_goals(args.n, args.seed, settings, args.distribution)
         if args.ros:
             from cito_ros.cli.closed_loop_ros import ros_records
@@ -345,7 +355,9 @@ def main(argv: list[str] | None = None) -> int:
                                   progress=lambda name: advance(bar, bar.n + 1, name))
             bar.close()
         else:
-            jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers))
+            clock_s = None if args.clock_s is None else dict(zip(("plan", "replan"), args.clock_s, strict=True))
+            jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers),
+                                    clock_s=clock_s)
             records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
                                       out=args.out / f"{args.distribution}-seed{args.seed}", label="closed loop")
         summary = closed_loop.report(records)

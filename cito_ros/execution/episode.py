@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
 import mujoco
@@ -62,7 +63,10 @@ class Episode:
         return asdict(self)
 
 
-def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld) -> Episode:
+def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld,
+                    clock_s: Mapping[str, float] | None = None) -> Episode:
+    """The executor on `world`, its compute times passing on the world's clock as measured, or as clock_s gives them
+    per job kind (planning.work_in_line)."""
     executor = Executor(settings, goal)
     watch = Watch(world)
 
@@ -81,7 +85,7 @@ def run_closed_loop(settings: Settings, goal: ExecuteGoal, world: SimulatedWorld
         step(bias_torques(executor.model.scene, executor._data, joints.q, joints.qdot))
     plan_compute_s = math.nan
     while executor.phase is not Phase.DONE:
-        work = work_in_line(executor, world.time_s)
+        work = work_in_line(executor, world.time_s, clock_s)
         if work is not None and work.kind == "plan" and math.isnan(plan_compute_s):
             plan_compute_s = work.compute_s
         step(executor.command(world.time_s))

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -190,12 +191,14 @@ def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, i
     return request, _plan(request, executor_plan_settings(settings, job.time_left_s, iterations, worlds))
 
 
-def work_in_line(executor: Executor, now_s: float) -> Work | None:
+def work_in_line(executor: Executor, now_s: float, clock_s: Mapping[str, float] | None = None) -> Work | None:
     """The executor's job, computed and accepted in line (blocking): for a caller whose clock stands still while
-    it computes (cito_ros.execution.episode, the tests)."""
+    it computes (cito_ros.execution.episode, the tests). Its compute time passes on that clock as measured, or as
+    clock_s gives it per job kind ("plan", "replan"): the same outcome on a fast machine as on a slow one."""
     job = executor.job(now_s)
     if job is None:
         return None
     began = time.perf_counter()
     outcome = compute(executor.settings, executor.goal, job)
-    return executor.accept(job, outcome, time.perf_counter() - began)
+    elapsed_s = time.perf_counter() - began
+    return executor.accept(job, outcome, elapsed_s if clock_s is None else clock_s[job.kind])

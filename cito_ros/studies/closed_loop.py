@@ -19,6 +19,7 @@ Success is judged at rest on the world's truth: the cube upright (never tipped p
 """
 from __future__ import annotations
 
+import json
 import math
 import statistics
 from collections import Counter
@@ -71,8 +72,10 @@ def poses(goal: Goal, world_mismatch: Mismatch, settings: Settings) -> dict[str,
             "target_pose": [*map(float, goal.target_position_m[:2]), float(goal.target_yaw_rad)]}
 
 
-def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Settings) -> dict[str, Any]:
-    """One goal in one world, open or closed loop: the episode's record."""
+def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Settings,
+            clock_s: dict[str, float] | None = None) -> dict[str, Any]:
+    """One goal in one world, open or closed loop: the episode's record; closed loop, its plans' and replans' compute
+    times on the world's clock as measured or as clock_s fixes them (run_closed_loop)."""
     warm_up(settings)  # as the executor node does before it serves: no plan's compute time pays for the reaches
     world_mismatch = world_for(mismatch, goal)
     world = SimulatedWorld(settings, world_mismatch, start_configuration(goal.beta), seed=goal.index)
@@ -81,17 +84,18 @@ def episode(goal: Goal, mismatch: Mismatch, mode: str, model: str, settings: Set
         told = settings.scene.object
         result = run_open_loop(settings, target, world, (tuple(told.position_m), told.yaw_rad))
     else:
-        result = run_closed_loop(settings, target, world)
+        result = run_closed_loop(settings, target, world, clock_s)
     record = {"goal": goal.index, "world": mismatch.name, "mode": mode, "contact_model": model,
               "offset_m": list(world_mismatch.offset_m), "offset_yaw_rad": world_mismatch.offset_yaw_rad,
-              "face": goal.face, "steady_reach_margin_m": steady_margin_m(goal, settings),
+              "face": goal.face, "clock_s": clock_s, "steady_reach_margin_m": steady_margin_m(goal, settings),
               **poses(goal, world_mismatch, settings),
               **result.as_dict()}
     return {**record, "place": place(record, settings.task)}
 
 
-def jobs(goals: list[Goal], model: str, settings: Settings, worlds=WORLDS) -> list:
-    return [(f"goal{goal.index:03d}-{world.name}-{mode}", episode, (goal, world, mode, model, settings))
+def jobs(goals: list[Goal], model: str, settings: Settings, worlds=WORLDS, clock_s: dict[str, float] | None = None
+         ) -> list:
+    return [(f"goal{goal.index:03d}-{world.name}-{mode}", episode, (goal, world, mode, model, settings, clock_s))
             for goal in goals for world in worlds for mode in MODES]
 
 
@@ -170,7 +174,9 @@ def report(records: list[dict[str, Any]]) -> dict[str, Any]:
     counted = [r for r in closed if "replans_taken" in r]  # not counted through the nodes
     taken = {"taken": sum(r["replans_taken"] for r in counted), "replans": sum(r["replans"] for r in counted)} \
         if counted else None
+    clocks = {json.dumps(r["clock_s"], sort_keys=True) for r in closed if r.get("clock_s")}
     return {"zones": out, "replan_rate_hz": _stats([r["replan_rate_hz"] for r in closed]), "replans_taken": taken,
+            "clock_s": json.loads(clocks.pop()) if len(clocks) == 1 else None,
             "replan_compute_s": _stats([r["replan_compute_s"] for r in closed]),
             "pushes_cut": {"pushes": sum(cut), "episodes": sum(n > 0 for n in cut)} if cut else None,
             "explained": explained, "faces": faces}
@@ -300,6 +306,9 @@ def markdown(summary: dict[str, Any]) -> str:
             f"{face} {e['success']} of {e['episodes']} episodes ({e['refused']} refused before any push)"
             for face, e in faces.items()) + ".")
     rate, compute = summary["replan_rate_hz"], summary["replan_compute_s"]
+    if clock := summary.get("clock_s"):
+        lines.append(f"Compute on the world's clock fixed, not measured (--clock-s): {clock['plan']:g} s a plan, "
+                     f"{clock['replan']:g} s a replan; the replan rates and compute above are those.")
     if rate["median"] is not None:
         lines.append(f"Replanning over every closed-loop episode: median rate {rate['median']:.1f} Hz (p90 of the "
                      f"episodes' medians {rate['p90']:.1f} Hz), median compute per replan {1e3 * compute['median']:.0f} "
