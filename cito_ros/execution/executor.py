@@ -250,8 +250,8 @@ class Executor:
         return math.hypot(x - planned[0], y - planned[1])
 
     def _succeeded(self, position_m: float, orientation_rad: float, after: str) -> bool:
-        """Whether the cube at rest is within the task's tolerances; if so, the execution ends as succeeded."""
-        if tolerance_ratio(position_m, orientation_rad, self.settings.task) < 1.0:
+        """Whether the camera sees the cube at rest within executor.done_fraction of the tolerances: then it ends."""
+        if tolerance_ratio(position_m, orientation_rad, self.settings.task) < self.settings.executor.done_fraction:
             self._end(Ending.SUCCEEDED, f"the cube is {100 * position_m:.2f} cm and {orientation_rad:.3f} rad from "
                                         f"the goal after {self.pushes} push(es){after}", None)
             return True

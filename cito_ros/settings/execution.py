@@ -78,6 +78,10 @@ class ExecutorSettings:
                                    positive=True)
     rest_speed_m_s: float = setting("the cube's estimated speed below which it counts as at rest (m/s)",
                                     positive=True)
+    done_fraction: float = setting("a push is judged at the goal when the camera sees the cube at rest within this "
+                                   "fraction of the task's tolerances (the larger of position and yaw): the camera's "
+                                   "resting pose is off the truth by millimetres and hundredths of a radian",
+                                   positive=True)
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
@@ -135,6 +139,9 @@ class ExecutorSettings:
         return self.replan and (self.replan_side_pushes or face == 0)
 
     def check(self, path: str) -> None:
+        if not self.done_fraction <= 1.0:
+            raise ValueError(f"{path}.done_fraction must be at most 1 (a cube judged at the goal outside the task's "
+                             f"tolerances is not there), got {self.done_fraction}")
         if not self.waypoint_fraction < 1.0:
             raise ValueError(f"{path}.waypoint_fraction must be below 1 (a fraction of the way to the goal; 0: no "
                              f"waypoints), got {self.waypoint_fraction}")
