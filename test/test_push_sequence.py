@@ -72,9 +72,11 @@ def test_a_goal_given_a_quarter_turn_round_is_pushed_to_as_the_same_pose_of_the_
 
 
 def test_where_neither_plan_is_sturdy_the_one_the_model_has_nearer_the_goal_is_made(settings):
-    """In worlds of friction x0.3-1.7 (where the run's were those of the friction it had identified), neither the
-    push to the goal nor the waypoint's is sturdy; the waypoint's moves the cube closer, the goal's not at all."""
-    settings, task = settings.with_overrides({"executor.world_friction_scales": [0.3, 0.3, 1.7, 1.7]}), settings.task
+    """In worlds of friction x0.1-2.5 (where the run's were those of the friction it had identified), neither the
+    push to the goal nor the waypoint's is sturdy; the waypoint's moves the cube closer, the goal's not at all. (At
+    x0.3-1.7 the waypoint's plan came out sturdy on one machine, its worst world at 0.94 of the tolerances, and not on
+    another: x0.1-2.5 leaves it at 1.23.)"""
+    settings, task = settings.with_overrides({"executor.world_friction_scales": [0.1, 0.1, 2.5, 2.5]}), settings.task
     alone = settings.with_overrides({"executor.plan_iterations": settings.executor.direct_iterations})
     direct, position, yaw = first_push(alone, 0, EDGE, EDGE_CUBE, EDGE_BETA)  # the plan to the goal as planned first
     assert EDGE.errors(position, yaw) == pytest.approx(EDGE.errors(*EDGE_CUBE), abs=1e-3), \
