@@ -112,7 +112,7 @@ def test_a_bad_goal_is_refused_with_its_reason_and_the_node_serves_the_next(robo
         assert result.status == Result.STATUS_INVALID_REQUEST and not result.success
         assert reason in result.message, result.message
     assert sim.poll() is None and node.poll() is None
-    handle = operator.send(GOAL)  # and the next goal runs
+    handle = operator.start(GOAL)  # and the next goal runs (sent again while the node's measurements are not fresh)
     assert handle.accepted
     operator.wait(handle.cancel_goal_async(), 30.0)
     assert operator.wait(handle.get_result_async()).result.status == Result.STATUS_CANCELLED

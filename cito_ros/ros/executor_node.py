@@ -204,13 +204,13 @@ class ExecutorNode(Node):
             if not math.isfinite(request.time_limit_s) or request.time_limit_s < 0:
                 raise ValueError(f"time_limit_s must be a non-negative number (0: the default), got "
                                  f"{request.time_limit_s}")
-            if not fresh:
-                return self._refuse(goal_handle, Result.STATUS_STALE_MEASUREMENTS,
-                                    f"no joint states and cube poses newer than {limit:g} s: nothing to start from")
             executor = Executor(self.settings, ExecuteGoal((float(position[0]), float(position[1])), yaw, model,
                                                            request.scene.strip() or None, request.time_limit_s))
         except ValueError as error:
             return self._refuse(goal_handle, Result.STATUS_INVALID_REQUEST, f"invalid goal: {error}")
+        if not fresh:  # after the request's own checks: a bad goal is told what is wrong with it, whatever the robot
+            return self._refuse(goal_handle, Result.STATUS_STALE_MEASUREMENTS,
+                                f"no joint states and cube poses newer than {limit:g} s: nothing to start from")
         for reading, arrival in self._poses:
             executor.on_pose(reading, arrival)
         executor.on_joints(self._joints, self._joints_arrival)
