@@ -3,6 +3,7 @@ policy, the compute delay honoured, and the executor holding the arm when its me
 cancelled. Real MuJoCo, real iLQR."""
 import dataclasses
 import math
+from collections.abc import Callable
 
 import mujoco
 import numpy as np
@@ -288,20 +289,28 @@ def test_a_next_push_that_would_turn_a_cube_at_the_place_to_the_goal_is_made(set
         assert turned.phase is (Phase.PLANNING if made else Phase.DONE)
 
 
-def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution_as_succeeded(settings):
-    """The judgement after a push can disagree with the cube at rest once the arm is away: then it is not pushed
-    again. Here the first push is judged against a tolerance no push meets, and the cube after the retreat against
-    one it meets. The next push, planned during the retreat, is then not made nor counted."""
-    strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
+def judged_once_drawn_back(strict, tolerance_m: Callable[[float], float]) -> Executor:
+    """An execution whose first push missed (`strict`: a tolerance no push meets), its next push planned during the
+    retreat, and the cube judged once the arm is back against tolerance_m(its position error after the push) and
+    a yaw tolerance it meets."""
     executor, world = retreating(strict)
     job = executor.job(world.time_s)
     closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad)
     assert executor.accept(job, dataclasses.replace(closer, start_s=world.time_s), 0.5) is not None
-    executor.settings = strict.with_overrides({"task.success_position_error_m": 0.5,
-                                               "task.success_orientation_error_rad": 3.0})
+    executor.settings = strict.with_overrides({
+        "task.success_position_error_m": tolerance_m(executor.errors(world.time_s)[0]),
+        "task.success_orientation_error_rad": 3.0})
     while executor.phase is Phase.RETREATING:
         world.step(executor.command(world.time_s))
         deliver(executor, world)
+    return executor
+
+
+def test_a_cube_found_at_the_goal_once_the_arm_has_drawn_back_ends_the_execution_as_succeeded(settings):
+    """The judgement after a push can disagree with the cube at rest once the arm is away: then it is not pushed
+    again. Here the first push is judged against a tolerance no push meets, and the cube after the retreat against
+    one it meets. The next push, planned during the retreat, is then not made nor counted."""
+    executor = judged_once_drawn_back(settings.with_overrides({"task.success_position_error_m": 1e-5}), lambda _: 0.5)
     assert executor.ending is Ending.SUCCEEDED and "after 1 push(es), once the arm drew back" in executor.message
     assert executor.pushes == 1 and executor.phase is Phase.DONE and executor.sturdy_pushes == [False]
 

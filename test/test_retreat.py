@@ -9,7 +9,7 @@ import pytest
 from cito_ros.execution.executor import Ending, ExecuteGoal, Phase
 from cito_ros.execution.planning import work_in_line
 from cito_ros.execution.policy import Retreat
-from test_execution import deliver, ending_at, retreating, started
+from test_execution import deliver, ending_at, judged_once_drawn_back, retreating, started
 
 
 def test_a_push_planned_during_the_retreat_for_a_cube_that_then_moved_is_planned_again_from_where_it_is(settings):
@@ -88,15 +88,6 @@ def test_a_cube_seen_within_the_tolerances_but_not_within_their_done_fraction_ge
     them. Here the cube after the retreat lies at 0.9 of the position tolerance: done at 1.0; at 0.8 a next push is
     planned."""
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5, "executor.done_fraction": done_fraction})
-    executor, world = retreating(strict)
-    job = executor.job(world.time_s)
-    closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad)
-    assert executor.accept(job, dataclasses.replace(closer, start_s=world.time_s), 0.5) is not None
-    position_m, _ = executor.errors(world.time_s)
-    executor.settings = strict.with_overrides({"task.success_position_error_m": position_m / 0.9,
-                                               "task.success_orientation_error_rad": 3.0})
-    while executor.phase is Phase.RETREATING:
-        world.step(executor.command(world.time_s))
-        deliver(executor, world)
+    executor = judged_once_drawn_back(strict, lambda position_m: position_m / 0.9)
     assert executor.ending is (Ending.SUCCEEDED if done else None) and executor.pushes == 1
     assert executor.phase is (Phase.DONE if done else Phase.PLANNING)  # not done: a next push is planned

@@ -358,8 +358,10 @@ def main(argv: list[str] | None = None) -> int:
             clock_s = None if args.clock_s is None else dict(zip(("plan", "replan"), args.clock_s, strict=True))
             jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers),
                                     clock_s=clock_s)
+            # a fixed clock's episodes apart from measured ones: a rerun takes the finished cases of its own directory
+            clock = "" if clock_s is None else f"-clock{clock_s['plan']:g}-{clock_s['replan']:g}"
             records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
-                                      out=args.out / f"{args.distribution}-seed{args.seed}", label="closed loop")
+                                      out=args.out / f"{args.distribution}-seed{args.seed}{clock}", label="closed loop")
         summary = closed_loop.report(records)
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "closed_loop.md").write_text(closed_loop.markdown(summary))
