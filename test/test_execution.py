@@ -12,7 +12,7 @@ import pytest
 from cito_ros.execution.episode import Watch, at_goal
 from cito_ros.execution.estimator import StateEstimator, tipping_tilt_rad
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Phase
-from cito_ros.execution.mpc import SPEED_GUARD
+from cito_ros.execution.policy import SPEED_GUARD
 from cito_ros.execution.planning import compute, work_in_line
 from cito_ros.execution.policy import Policy, bias_torques, state_difference
 from cito_ros.execution.world import Mismatch, PoseReading, SimulatedWorld

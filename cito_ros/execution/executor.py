@@ -32,10 +32,9 @@ import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over
 from cito_ros.execution.identify import Observed
-from cito_ros.execution.mpc import SPEED_GUARD, push_model
-from cito_ros.execution.policy import Policy, Retreat, bias_torques
+from cito_ros.execution.mpc import push_model
+from cito_ros.execution.policy import Policy, Retreat, robot_torques
 from cito_ros.execution.world import JointReading, PoseReading
-from cito_ros.model.speed_guard import within_speed_limits
 from cito_ros.planner.results import tolerance_ratio
 from cito_ros.planner.task import cube_turn_rad, yaw_of
 from cito_ros.settings import Settings
@@ -168,11 +167,9 @@ class Executor:
                 u = kp * (q - joints.q) + kd * (qdot - joints.qdot)
             else:
                 u = kp * (self._hold_q - joints.q) - kd * joints.qdot
-            scene = self.model.scene
-            bias = bias_torques(scene, self._data, joints.q, joints.qdot)  # _data: one thread at a time
-            # kept within the speed limits ahead (a robot's limiter faults past them) and u + bias within the motors'
-            return within_speed_limits(scene, self._data, u, joints.qdot, bias, SPEED_GUARD * scene.velocity_limit,
-                                       self.settings.executor.speed_horizon_s) + bias
+            # _data: one thread at a time
+            return robot_torques(self.model.scene, self._data, u, joints.q, joints.qdot,
+                                 self.settings.executor.speed_horizon_s)
 
     def _advance(self, now_s: float) -> None:
         joints = self._joints

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from cito_ros.execution.policy import Policy
+from cito_ros.execution.policy import SPEED_GUARD, Policy
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.model.simulator import Simulator
@@ -37,7 +37,6 @@ if TYPE_CHECKING:
     from cito_ros.execution.executor import ExecuteGoal
 
 REPLAN_STAGE = 1  # the physical stage whose weights the replans take: the one every start runs after its first
-SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
 
 
 def servo_gains(settings: Settings) -> tuple[np.ndarray, np.ndarray]:

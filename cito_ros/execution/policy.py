@@ -23,6 +23,9 @@ import mujoco
 import numpy as np
 
 from cito_ros.model.scene import Scene
+from cito_ros.model.speed_guard import within_speed_limits
+
+SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,16 @@ def hold_torques(scene: Scene, data: mujoco.MjData, kp: np.ndarray, kd: np.ndarr
                  q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
     """A joint servo holding hold_q at rest, plus the arm's bias forces: the total torques of a robot's hold."""
     return kp * (hold_q - q) - kd * qdot + bias_torques(scene, data, q, qdot)
+
+
+def robot_torques(scene: Scene, data: mujoco.MjData, u: np.ndarray, q: np.ndarray, qdot: np.ndarray,
+                  speed_horizon_s: float) -> np.ndarray:
+    """The total joint torques the executor sends for its servo's u at (q, qdot): u within the speed guard
+    (SPEED_GUARD of the velocity limits, speed_horizon_s ahead: a robot's limiter faults past them) and, the arm's
+    bias forces added, within the motors' limits. The checks of its plans step the same law (tracking with
+    speed_guard: the inertia and bias forces of each step's state)."""
+    bias = bias_torques(scene, data, q, qdot)
+    return within_speed_limits(scene, data, u, qdot, bias, SPEED_GUARD * scene.velocity_limit, speed_horizon_s) + bias
 
 
 def bias_torques(scene: Scene, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:

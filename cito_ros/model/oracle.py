@@ -94,17 +94,17 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
     controls = np.zeros((steps, model.nu))
     states = np.empty((steps, simulator.nstate))
     sensordata = np.empty((steps, model.nsensordata))
-    if gains.speed_guard > 0:
-        mujoco.mj_fwdPosition(model, data)  # the arm's inertia for the guard's first step
     for t in range(steps):
         command = kp * (q_ref[t] - data.qpos[scene.arm_qpos_adr]) + kd * (qdot_ref[t] - data.qvel[scene.arm_dof_adr])
         if feed_forward is not None:
             command = feed_forward[t] + command
         controls[t, scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
-        if gains.speed_guard > 0:
+        if gains.speed_guard > 0:  # at this state's inertia and bias forces, as the executor takes them
+            mujoco.mj_fwdPosition(model, data)
+            mujoco.mj_fwdVelocity(model, data)
             controls[t, scene.motor_ids] = within_speed_limits(
-                scene, data, controls[t, scene.motor_ids], data.qvel[scene.arm_dof_adr], np.zeros(len(kp)),
-                gains.speed_guard * scene.velocity_limit, gains.speed_horizon_s)
+                scene, data, controls[t, scene.motor_ids], data.qvel[scene.arm_dof_adr],
+                data.qfrc_bias[scene.arm_dof_adr], gains.speed_guard * scene.velocity_limit, gains.speed_horizon_s)
         data.ctrl[:] = controls[t]
         mujoco.mj_step(model, data)
         mujoco.mj_getState(model, data, states[t], mujoco.mjtState.mjSTATE_FULLPHYSICS)

@@ -65,7 +65,8 @@ int cito_feedback_rollouts(const mjModel* m, mjData** datas, int nthread, const 
 // -torque_limit_j, torque_limit_j), q_j = qpos[qpos_adr[j]], qdot_j = qvel[dof_adr[j]], plus
 // feed_forward[s, j] inside the clamp where feed_forward is not NULL, and every other control is zero;
 // where speed_limit is not NULL, those torques then pass the executor's speed guard (joint speeds kept within
-// speed_limit speed_horizon seconds ahead, cito_ros.model.speed_guard.within_speed_limits without bias).
+// speed_limit speed_horizon seconds ahead, and u plus the arm's bias forces within the torque limits:
+// cito_ros.model.speed_guard.within_speed_limits with the bias forces at each step's state).
 // Row-major arrays; q_ref, qdot_ref, feed_forward: steps x n_joints; n_joints <= 64.
 typedef struct {
   int steps, n_joints;

@@ -1,19 +1,26 @@
 // PD joint tracking, the robot's joint trajectory controller of cito_ros.tracking (see cito_native.h).
 #include "cito_native.h"
 
-// The executor's speed guard (cito_ros.model.speed_guard.within_speed_limits, its motors' limits without the bias
-// forces, which the model's motors add): u changed only where it would take a joint moving at qdot past
-// speed_limit within speed_horizon, at the arm's inertia of d->qM (the last step's); the Python oracle's
-// operations in its order.
+// The executor's speed guard (cito_ros.model.speed_guard.within_speed_limits): u changed only where it would take a
+// joint moving at qdot past speed_limit within speed_horizon, and kept within the motors' limits, with the bias
+// forces the model's motors add on top too (u + bias within +-torque_limit, as a robot's motors bound the total the
+// executor sends), at the arm's inertia and bias forces of this step's state (d->qM, d->qfrc_bias: forwarded by the
+// caller, as the executor forwards them at every measured state); the Python oracle's operations in its order.
 static void speed_guard(const mjModel* m, mjData* d, const CitoTracking* t, mjtNum* u) {
   int n = t->n_joints, nv = m->nv;
   mj_markStack(d);
   mjtNum* full = mj_stackAllocNum(d, (size_t)nv * nv);
   mjtNum* inertia = mj_stackAllocNum(d, (size_t)n * n);
   mjtNum* factor = mj_stackAllocNum(d, (size_t)n * n);
-  mjtNum* work = mj_stackAllocNum(d, 6 * (size_t)n);
+  mjtNum* work = mj_stackAllocNum(d, 8 * (size_t)n);
   mjtNum *acceleration = work, *low = work + n, *high = work + 2 * n, *clipped = work + 3 * n;
-  mjtNum *rest = work + 4 * n, *step = work + 5 * n;
+  mjtNum *rest = work + 4 * n, *step = work + 5 * n, *low_Nm = work + 6 * n, *high_Nm = work + 7 * n;
+  for (int j = 0; j < n; j++) {
+    mjtNum limit = t->torque_limit[j], bias = d->qfrc_bias[t->dof_adr[j]];
+    low_Nm[j] = -limit - bias > -limit ? -limit - bias : -limit;
+    high_Nm[j] = limit - bias < limit ? limit - bias : limit;
+    u[j] = u[j] < low_Nm[j] ? low_Nm[j] : (u[j] > high_Nm[j] ? high_Nm[j] : u[j]);
+  }
   mj_fullM(m, d, full);
   for (int i = 0; i < n; i++) {
     for (int j = 0; j < n; j++) inertia[i * n + j] = full[t->dof_adr[i] * nv + t->dof_adr[j]];
@@ -38,15 +45,15 @@ static void speed_guard(const mjModel* m, mjData* d, const CitoTracking* t, mjtN
     mjtNum room = 1;
     for (int j = 0; j < n; j++) {
       step[j] = step[j] - rest[j];
-      mjtNum limit = t->torque_limit[j], ratio = room;
-      if (step[j] > 0) ratio = (limit - rest[j]) / step[j];
-      else if (step[j] < 0) ratio = (-limit - rest[j]) / step[j];
+      mjtNum ratio = room;
+      if (step[j] > 0) ratio = (high_Nm[j] - rest[j]) / step[j];
+      else if (step[j] < 0) ratio = (low_Nm[j] - rest[j]) / step[j];
       room = ratio < room ? ratio : room;
     }
     room = room < 0 ? 0 : room;
     for (int j = 0; j < n; j++) {
-      mjtNum value = rest[j] + room * step[j], limit = t->torque_limit[j];
-      u[j] = value < -limit ? -limit : (value > limit ? limit : value);
+      mjtNum value = rest[j] + room * step[j];
+      u[j] = value < low_Nm[j] ? low_Nm[j] : (value > high_Nm[j] ? high_Nm[j] : value);
     }
   }
   mj_freeStack(d);
@@ -57,7 +64,6 @@ int cito_track(const mjModel* m, mjData* d, const CitoTracking* t) {
   // as a fresh mjData: inputs, warmstart and warnings zero
   mj_resetData(m, d);
   mj_setState(m, d, t->initial_state, mjSTATE_FULLPHYSICS);
-  if (t->speed_limit) mj_fwdPosition(m, d);  // the arm's inertia for the guard's first step
   mjtNum u[64];  // n_joints <= 64 (checked by the caller)
   for (int step = 0; step < t->steps; step++) {
     const mjtNum* q_ref = t->q_ref + (size_t)step * n;
@@ -72,7 +78,11 @@ int cito_track(const mjModel* m, mjData* d, const CitoTracking* t) {
       mjtNum limit = t->torque_limit[j];
       u[j] = command < -limit ? -limit : (command > limit ? limit : command);
     }
-    if (t->speed_limit) speed_guard(m, d, t, u);
+    if (t->speed_limit) {  // the arm's inertia and bias forces at this step's state, as the executor takes them
+      mj_fwdPosition(m, d);
+      mj_fwdVelocity(m, d);
+      speed_guard(m, d, t, u);
+    }
     for (int j = 0; j < n; j++) controls[t->motor_ids[j]] = u[j];
     mju_copy(d->ctrl, controls, nu);
     mj_step(m, d);
