@@ -17,7 +17,7 @@ def test_a_push_planned_during_the_retreat_for_a_cube_that_then_moved_is_planned
     knocked 2 cm sideways (as the retreating arm brushed it in 4 of 48 retreats, by 0.2-2.4 cm):
     once the arm is back that push is not made, and the next job plans one from where the cube now is."""
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5})
-    executor, world = retreating(strict)
+    executor, world = retreating(settings, strict)
     job = executor.job(world.time_s)
     closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad,
                        job.state)
@@ -88,6 +88,6 @@ def test_a_cube_seen_within_the_tolerances_but_not_within_their_done_fraction_ge
     them. Here the cube after the retreat lies at 0.9 of the position tolerance: done at 1.0; at 0.8 a next push is
     planned."""
     strict = settings.with_overrides({"task.success_position_error_m": 1e-5, "executor.done_fraction": done_fraction})
-    executor = judged_once_drawn_back(strict, lambda position_m: position_m / 0.9)
+    executor = judged_once_drawn_back(settings, strict, lambda position_m: position_m / 0.9)
     assert executor.ending is (Ending.SUCCEEDED if done else None) and executor.pushes == 1
     assert executor.phase is (Phase.DONE if done else Phase.PLANNING)  # not done: a next push is planned
