@@ -254,12 +254,9 @@ def retreating(settings, strict) -> tuple[Executor, SimulatedWorld]:
     one of them tipped the cube or not as the replans' timing fell (in one clean clone's run, and every time on a
     fixed clock)."""
     executor, world = started(settings)
-    while executor.phase is not Phase.PUSHING and world.time_s < 25:
-        work_in_line(executor, world.time_s)
-        world.step(executor.command(world.time_s))
-        deliver(executor, world)
-    executor.settings = strict
     while executor.phase is not Phase.RETREATING and world.time_s < 25:
+        if executor.phase is Phase.PUSHING:
+            executor.settings = strict
         work_in_line(executor, world.time_s)
         world.step(executor.command(world.time_s))
         deliver(executor, world)

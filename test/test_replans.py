@@ -20,6 +20,7 @@ from test_execution import deliver, push_under_way, seen_at_rest, started
 # on its time limit with no step taken in 1 of 5 runs of a test alone and once in a clean clone's `make test`
 REPLANNING = {"executor.replan": True, "executor.replan_budget_s": 0.3}
 
+
 def test_a_cube_at_rest_is_put_in_the_state_still_at_its_resting_pose(settings, scenes):
     """Fitted through the camera's noise, the last poses of a cube at rest give it a velocity; the state the
     replans start from has it at rest where the mean of its poses puts it."""

@@ -99,14 +99,16 @@ def pd_motion(simulator: Simulator, initial_state: np.ndarray, q_ref: np.ndarray
         if feed_forward is not None:
             command = feed_forward[t] + command
         controls[t, scene.motor_ids] = np.clip(command, -scene.torque_limit, scene.torque_limit)
-        if gains.speed_guard > 0:  # at this state's inertia and bias forces, as the executor takes them
-            mujoco.mj_fwdPosition(model, data)
-            mujoco.mj_fwdVelocity(model, data)
+        if gains.speed_guard > 0:  # mj_step1: this state's inertia and bias forces, as the executor takes them
+            mujoco.mj_step1(model, data)
             controls[t, scene.motor_ids] = within_speed_limits(
                 scene, data, controls[t, scene.motor_ids], data.qvel[scene.arm_dof_adr],
                 data.qfrc_bias[scene.arm_dof_adr], gains.speed_guard * scene.velocity_limit, gains.speed_horizon_s)
         data.ctrl[:] = controls[t]
-        mujoco.mj_step(model, data)
+        if gains.speed_guard > 0:
+            mujoco.mj_step2(model, data)
+        else:
+            mujoco.mj_step(model, data)
         mujoco.mj_getState(model, data, states[t], mujoco.mjtState.mjSTATE_FULLPHYSICS)
         sensordata[t] = data.sensordata
     warnings = warning_counts(np.array([warning.number for warning in data.warning]))

@@ -78,14 +78,16 @@ int cito_track(const mjModel* m, mjData* d, const CitoTracking* t) {
       mjtNum limit = t->torque_limit[j];
       u[j] = command < -limit ? -limit : (command > limit ? limit : command);
     }
-    if (t->speed_limit) {  // the arm's inertia and bias forces at this step's state, as the executor takes them
-      mj_fwdPosition(m, d);
-      mj_fwdVelocity(m, d);
+    // with the guard, the step split around the controls: mj_step1 leaves the arm's inertia and bias forces at this
+    // step's state, as the executor takes them, and mj_step2 does not compute them again
+    if (t->speed_limit) {
+      mj_step1(m, d);
       speed_guard(m, d, t, u);
     }
     for (int j = 0; j < n; j++) controls[t->motor_ids[j]] = u[j];
     mju_copy(d->ctrl, controls, nu);
-    mj_step(m, d);
+    if (t->speed_limit) mj_step2(m, d);
+    else mj_step(m, d);
     mj_getState(m, d, t->states + (size_t)step * nstate, mjSTATE_FULLPHYSICS);
     mju_copy(t->sensordata + (size_t)step * ns, d->sensordata, ns);
   }
