@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import signal
+import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +17,7 @@ from cito_msgs.action import ExecutePush
 
 from cito_ros.cli.closed_loop_ros import closed_loop_episode
 from cito_ros.execution.executor import ExecuteGoal
-from cito_ros.ros.sim_session import Operator, stop
+from cito_ros.ros.sim_session import BIN, Operator, stop
 from cito_ros.studies import closed_loop, targets
 
 from node_harness import launch, read_with_mcap, read_with_rosbags, wait_for_bag
@@ -78,6 +81,50 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
     finally:
         operator.close()
         stop(node)
+
+
+def test_the_simulated_robot_says_when_it_fell_behind_real_time(tmp_path):
+    """Suspended for 0.4 s (as a starved core would hold it), the simulation says how far it fell behind: its
+    measurements stopped meanwhile, which an executor sees as stale."""
+    log = tmp_path / "cito-sim-robot.log"
+    sim = launch("cito-sim-robot", 151 + os.getpid() % 20, log=log)
+    try:
+        deadline = time.monotonic() + 60.0
+        while "simulating" not in log.read_text() and time.monotonic() < deadline and sim.poll() is None:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        assert "behind real time" not in log.read_text()
+        sim.send_signal(signal.SIGSTOP)
+        time.sleep(0.4)
+        sim.send_signal(signal.SIGCONT)
+        time.sleep(1.0)
+        lags = [float(line.split("fell ")[1].split(" s")[0]) for line in log.read_text().splitlines()
+                if "behind real time" in line]
+        assert lags and max(lags) >= 0.35, log.read_text()
+    finally:
+        stop(sim)
+
+
+def test_ctrl_c_stops_the_node_and_its_planner_process_quietly(tmp_path):
+    """A terminal's Ctrl-C reaches the node's whole process group, its planner's process too: the node shuts down
+    with exit code 0, and no process prints a traceback."""
+    log = tmp_path / "cito-executor-node.log"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(131 + os.getpid() % 20), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    with open(log, "wb") as output:
+        node = subprocess.Popen([str(BIN / "cito-executor-node"), "--ros-args", "-p", f"node.bag_directory:={tmp_path}"],
+                                env=env, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60.0
+        while "ready" not in log.read_text() and time.monotonic() < deadline and node.poll() is None:
+            time.sleep(0.1)
+        assert "ready" in log.read_text(), log.read_text()
+        os.killpg(node.pid, signal.SIGINT)
+        assert node.wait(timeout=20.0) == 0, log.read_text()
+        time.sleep(0.5)  # the planner's process, if it outlived the node, has had its say
+        assert "shutting down" in log.read_text() and "Traceback" not in log.read_text(), log.read_text()
+    finally:
+        if node.poll() is None:
+            os.killpg(node.pid, signal.SIGKILL)
 
 
 @pytest.fixture(scope="module")

@@ -95,8 +95,11 @@ def _execute(args) -> int:
     open_world = SimulatedWorld(settings, world, start_configuration(settings.beta))
     opened = run_open_loop(settings, goal, open_world, (tuple(told.position_m), told.yaw_rad))
     domain = int(os.environ["ROS_DOMAIN_ID"])
-    sim = spawn("cito-sim-robot", domain, *robot_parameters(world, settings.beta, 0))
-    node = spawn("cito-executor-node", domain, f"node.bag_directory:={args.bag_directory.resolve()}")
+    logs = args.bag_directory.resolve() / "logs"  # the nodes' own words, for an execution that went wrong
+    logs.mkdir(parents=True, exist_ok=True)
+    sim = spawn("cito-sim-robot", domain, *robot_parameters(world, settings.beta, 0), log=logs / "cito-sim-robot.log")
+    node = spawn("cito-executor-node", domain, f"node.bag_directory:={args.bag_directory.resolve()}",
+                 log=logs / "cito-executor-node.log")
     operator = Operator(domain)
     try:
         if not operator.wait_for_robot():
@@ -119,6 +122,8 @@ def _execute(args) -> int:
     replans = f"{result.replans} replans ({result.replan_rate_hz:.1f} Hz)" if result.replans else "no replans"
     print(f"  closed loop: {result.message}; {replans}; {closed.round_trip_s:.1f} s from goal to result")
     print(f"  bag                {result.bag_path}")
+    if result.status == result.STATUS_STALE_MEASUREMENTS:
+        print(f"  the nodes' logs    {logs}")
     return 0
 
 

@@ -175,8 +175,9 @@ class Executor:
         joints = self._joints
         stale = self.settings.executor.stale_after_s  # measurements that stopped arriving, whatever their stamps
         if now_s - self._joints_arrival_s > stale or now_s - self._pose_arrival_s > stale:
-            what = "joint states" if now_s - self._joints_arrival_s > stale else "cube poses"
-            return self._end(Ending.STALE_MEASUREMENTS, f"no {what} for {self.settings.executor.stale_after_s:g} s: "
+            what, age_s = max(("joint states", now_s - self._joints_arrival_s),
+                              ("cube poses", now_s - self._pose_arrival_s), key=lambda item: item[1])
+            return self._end(Ending.STALE_MEASUREMENTS, f"no {what} for {age_s:.2f} s (stale after {stale:g} s): "
                                                         f"the arm is held where it is", joints.q)
         if tipped_over(self.model.scene, self.estimator.tilt_rad):
             return self._end(Ending.TASK_NOT_ACHIEVED, f"the cube has tipped over (its top "

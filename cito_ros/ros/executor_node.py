@@ -26,6 +26,7 @@ import gc
 import math
 import multiprocessing
 import os
+import signal
 import sys
 import threading
 import time
@@ -97,11 +98,12 @@ class ExecutorNode(Node):
         # Python never holds up the control steps, which run on every joint state
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # its numpy's threads would not be niced
         self._planner = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                                               initializer=os.nice, initargs=(PLANNER_NICENESS,))
+                                                               initializer=_start_planner_process)
         # its threads as configured (gradient.threads): niced, they take only what the control loop and the robot
         # leave; with one, 5 of 16 executions through the nodes reached the goal, with two 7 of 16
-        self._planner.submit(warm_up, self.settings).add_done_callback(lambda _: None)
+        planner_ready = self._planner.submit(_warm_up_planner, self.settings)
         warm_up(self.settings)  # and here: an execution's model is made here too (the push reach, once)
+        planner_ready.result()  # ready means ready: a first goal's plan waits for no process's start
         self.stopping = threading.Event()
         self._slot = GoalSlot()
         self._executor: Executor | None = None   # the running execution's, or the last one's (holding the arm)
@@ -313,6 +315,18 @@ class ExecutorNode(Node):
     def destroy_node(self) -> None:
         self._control.destroy()
         super().destroy_node()
+
+
+def _warm_up_planner(settings) -> None:
+    """builder.warm_up in the planner's process, nothing sent back (what it made stays there)."""
+    warm_up(settings)
+
+
+def _start_planner_process() -> None:
+    """The planner's process: niced; and a terminal's Ctrl-C, which reaches the node's whole process group, ends it
+    at once and quietly (without, it printed a KeyboardInterrupt traceback): the node stops the execution itself."""
+    os.nice(PLANNER_NICENESS)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -122,6 +122,9 @@ class SimRobot(Node):
             due = origin + world.time_s
             late = time.time() - due
             if late > RESYNC_S:
+                # a stall (a starved core, a suspended process): said, as the robot's measurements stopped meanwhile
+                self.get_logger().warning(f"the simulation fell {late:.3f} s behind real time at {world.time_s:.3f} s "
+                                          f"of its clock: it goes on from there, its stamps {late:.3f} s later")
                 origin += late
             elif late < 0:
                 time.sleep(-late)
