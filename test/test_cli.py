@@ -240,6 +240,9 @@ def test_the_main_job_plans_then_executes_open_and_closed_loop_in_a_mismatched_w
     assert "open loop" in result.stdout and "closed loop" in result.stdout
     table = result.stdout.split("true error at rest", 1)[1].splitlines()[0]
     assert len(re.findall(r"\d+\.\d\d cm \d\.\d{3} rad", table)) == 2  # both outcomes, on the world's truth
-    bags = sorted(p.name for p in tmp_path.iterdir())
+    bags = sorted(p.name for p in tmp_path.iterdir() if p.name != "logs")
     assert len(bags) == 2 and bags[0].startswith("execute_") and bags[1].startswith("plan_")
+    # and the nodes' own words, for an execution that went wrong
+    assert "ready" in (tmp_path / "logs" / "cito-executor-node.log").read_text()
+    assert "simulating" in (tmp_path / "logs" / "cito-sim-robot.log").read_text()
     assert (tmp_path / bags[0] / "metadata.yaml").is_file()

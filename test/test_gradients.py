@@ -11,7 +11,7 @@ from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.problem import PushProblem, StageCost
 from cito_ros.planner.problem.rollout_derivatives import adjoint, forward_sensitivities, linearize
 from cito_ros.planner.solvers.ipopt import _Callbacks
-from cito_ros.planner.stages import physical_twin
+from cito_ros.planner.stages import physical_twin, stage_cost
 from cito_ros.planner.task import PushTask
 
 
@@ -132,9 +132,36 @@ def every_term(settings, name, virtual_force, complementarity=0.0):
     profile = np.where(np.arange(base.n_steps) >= base.n_steps // 2, 1.0 / base.n_steps, 0.0)
     cost = StageCost(base.weights, virtual_force, joint_speed=100.0, joint_speed_margin=0.05, joint_position=100.0,
                      joint_position_margin_rad=2.0, object_velocity=10.0, contact=50.0, contact_profile=profile,
-                     complementarity=complementarity)
+                     complementarity=complementarity, orientation_equivalent_m_per_rad=0.5)
     return PushProblem(base.simulator, base.initial_state, base.task, cost, settings.gradient,
                        settings.task.position_error_scale_min_m)
+
+
+@pytest.mark.parametrize("balance, turn_per_position", [(0.0, 0.14), (1.0, 1.0)])
+def test_the_executors_pushes_weigh_a_turn_off_by_its_tolerance_as_a_position_off_by_its_own(settings, balance,
+                                                                                            turn_per_position):
+    """A push near the goal (1 cm: the position scale at its 5 cm floor): with the paper's w2 alone a cube turned
+    by the orientation tolerance costs 1/7 of one off by the position tolerance; with the executor's
+    stages.orientation_balance 1, as much. Both measured on the terminal residuals of states with the cube so."""
+    tuned = settings.with_overrides({"stages.orientation_balance": balance})
+    base = make_problem(settings, "vscm")
+    scene, state = base.scene, base.initial_state
+    task = PushTask(scene.object_qpos(state)[:3] + [0.01, 0.0, 0.0])
+    problem = PushProblem(base.simulator, state, task, stage_cost(tuned, base.weights, False, 0.0, None, 0.0, 0.0),
+                          tuned.gradient, tuned.task.position_error_scale_min_m)
+    assert problem.position_scale == tuned.task.position_error_scale_min_m
+
+    def pose_cost(offset_m: float, yaw_rad: float) -> float:
+        final = state.copy()
+        pose = scene.object_qpos(final)
+        pose[:3] = task.target_position_m + [offset_m, 0.0, 0.0]
+        pose[3:7] = [np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]
+        residuals, _ = problem._terminal_residuals(final, derivatives=False)
+        return float(residuals[:6] @ residuals[:6])
+
+    turned, moved = pose_cost(0.0, tuned.task.success_orientation_error_rad), \
+        pose_cost(tuned.task.success_position_error_m, 0.0)
+    assert turned / moved == pytest.approx(turn_per_position, rel=0.02)
 
 
 @pytest.mark.parametrize("name, virtual_force, complementarity",

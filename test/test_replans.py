@@ -18,7 +18,11 @@ from test_execution import deliver, push_under_way, seen_at_rest, started
 # replans on, with a budget a slow moment does not use up before the replan's first iteration: these tests are about a
 # replan's verdict, and at the configured 0.08 s a process's first replan, its setup and first rollout slow, stopped
 # on its time limit with no step taken in 1 of 5 runs of a test alone and once in a clean clone's `make test`
-REPLANNING = {"executor.replan": True, "executor.replan_budget_s": 0.3}
+# on the first replan of the push below; and with the paper's orientation weight: with the executor's balanced one
+# (executor.orientation_balance) that replan lowers its cost 5.77 to 2.13 by a turn that leaves the cube 0.2 mm further
+# from the goal at the horizon's end, and a replan that leaves it further is not taken (mpc.PushModel.replan), so
+# there would be no replan for these tests to judge
+REPLANNING = {"executor.replan": True, "executor.replan_budget_s": 0.3, "executor.orientation_balance": 0.0}
 
 
 def test_a_cube_at_rest_is_put_in_the_state_still_at_its_resting_pose(settings, scenes):

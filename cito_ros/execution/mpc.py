@@ -62,7 +62,9 @@ class PushModel:
 
     def __init__(self, settings: Settings, contact_model_name: str, config: SceneConfig, target_position_m,
                  target_yaw_rad: float, object_scales: tuple[float, float] = (1.0, 1.0)):
-        self.settings, self.object_scales = settings, object_scales
+        # its replans' cost as the executor's plans' (executor_plan_settings)
+        self.settings = settings.with_overrides({"stages.orientation_balance": settings.executor.orientation_balance})
+        self.object_scales = object_scales
         self.scene = Scene(contact_model(contact_model_name, settings.contact_models), config)
         # the cube at rest in the model, the arm anywhere: the cube's resting height, and the goal checked there
         self.resting_state = self.scene.initial_state(start_configuration(settings.beta))

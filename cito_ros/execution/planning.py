@@ -39,6 +39,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": iterations,
         "stages.scripted.follow_face": True,
+        "stages.orientation_balance": executor.orientation_balance,
         # side starts spent the pushes' iteration budget: closed loop 58 of 72 with them, 64 without (docs/results.md)
         "stages.scripted.side_faces.enabled": False,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],

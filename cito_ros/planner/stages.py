@@ -12,6 +12,7 @@ its candidates are ranked by cito_ros.planner.candidates.
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -176,11 +177,12 @@ def physical_twin(problem: PushProblem, cost: StageCost) -> PushProblem:
 def stage_cost(settings: Settings, weights, virtual_force: bool, contact_weight: float,
                contact_profile: np.ndarray | None, joint_speed_weight: float,
                joint_position_weight: float, complementarity: float = 0.0) -> StageCost:
-    limits = settings.limits
+    limits, task = settings.limits, settings.task
     return StageCost(weights, virtual_force, joint_speed_weight, limits.joint_speed_margin,
                      joint_position_weight, limits.joint_position_margin_rad,
                      0.0 if virtual_force else limits.object_velocity_weight, contact_weight, contact_profile,
-                     complementarity)
+                     complementarity, math.sqrt(settings.stages.orientation_balance) * task.success_position_error_m
+                     / task.success_orientation_error_rad)
 
 
 def touch_profile(discovery: PushProblem, z: np.ndarray, touch_force_N: float) -> np.ndarray:

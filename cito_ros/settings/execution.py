@@ -129,6 +129,8 @@ class ExecutorSettings:
     identify_tolerance: float = setting("possible: a mean squared error (of position and yaw, each over its task "
                                         "tolerance) within this of the best's", minimum=0.0)
     identified_spread: float = setting("those ends at least this and 1 / this times the middle", minimum=1.0)
+    orientation_balance: float = setting("stages.orientation_balance for the executor's plans and replans: the "
+                                         "corrections near the goal turn the cube as they move it", minimum=0.0)
     plan_iterations: int = setting("the planner's iterations for one push (solver.iteration_budget: the best plan "
                                    "by then is taken, the same however loaded the machine is)", minimum=1)
     plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)

@@ -182,6 +182,11 @@ class StagesSettings:
     touch_force_N: float = setting("a virtual force above this marks the discovery's touch-down", positive=True)
     goal_margin: float = setting("a start's stages end once its executed plan is within this fraction of the success "
                                  "tolerances (at most 1)", positive=True)
+    orientation_balance: float = setting(
+        "the final orientation's weight at least this times the position's, each error in units of its success "
+        "tolerance (w2 >= this w1 (tolerance_m / tolerance_rad / position scale)^2; 0: the paper's w2 alone, which "
+        "near the goal, at the position scale's floor, weighs a turn off by its tolerance 7 times less than a "
+        "position off by its own)", minimum=0.0)
 
     def check(self, path: str) -> None:
         if any(start >= 1.0 for start in self.starts) or not (self.starts or self.scripted.enabled or

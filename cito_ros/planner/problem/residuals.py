@@ -35,6 +35,8 @@ class StageCost:
       knot l's steps) in place of the slack s_l, its cost w5 sum s_l^2 and the constraints. At the
       paper's optimum s_l = phi_l gamma_l; what is left is box-bounded (a least-squares problem), and
       the simulator's contacts keep phi from going far below 0. 0: the model's own variables
+    orientation_equivalent_m_per_rad: the final orientation's weight at least w1 (this / position scale)^2: a turn
+      weighs at least as much as this many metres per radian of position error (0: w2 alone)
     """
 
     weights: Weights
@@ -47,6 +49,7 @@ class StageCost:
     contact: float
     contact_profile: np.ndarray | None  # (T,) step weights of the contact term
     complementarity: float = 0.0
+    orientation_equivalent_m_per_rad: float = 0.0
 
     @classmethod
     def paper(cls, weights: Weights) -> "StageCost":
@@ -66,7 +69,8 @@ class Residuals:
         dof = self.scene.object_dof_adr
         object_qpos = self.scene.object_qpos(final_state)
         position_error, angle_error = self.task.aim_error(object_qpos)
-        position_root, angle_root = math.sqrt(w.w1) / self.position_scale, math.sqrt(w.w2)
+        position_root = math.sqrt(w.w1) / self.position_scale
+        angle_root = max(math.sqrt(w.w2), position_root * c.orientation_equivalent_m_per_rad)
         rows = 6 + (6 if c.object_velocity else 0) + (7 if c.joint_speed else 0)
         residuals = np.zeros(rows)
         # an evaluation's cost needs the residuals alone; the Jacobian (six Euler-angle evaluations among the
