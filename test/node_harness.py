@@ -43,6 +43,7 @@ LATCHED = {"/cito/joint_trajectory", "/cito/object_path", "/cito/plan_result"}
 HORIZON_STEPS = {round(h / load_settings().scene.timestep_s) for h in load_settings().round_horizons_s}
 
 
+SERVICE_MATCH_S = 1.0  # after a service is seen, for the server to match this client's response reader
 LOG_DIRECTORY = Path()  # the session's, under pytest's temporary directory (conftest.log_directory)
 _LOG_NUMBERS = itertools.count()
 HOLD_STEPS = round(load_settings().tracking.hold_s / load_settings().scene.timestep_s)
@@ -105,9 +106,13 @@ class Client:
             self.node.create_subscription(cls, topic, lambda m, t=topic: self.received[t].append(m), qos)
 
     def wait_for_service(self, timeout_s: float = 30.0) -> bool:
+        """Whether the service is up; and then a moment more: this client sees the node's request reader before the
+        node has matched this client's response reader, and Fast DDS drops a response to a reader it has not matched
+        within 100 ms ("failed to send response (timeout)": a clean clone's test_sigterm_during_a_solve, 2026-11-30)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.client.service_is_ready():
+                self.spin_for(SERVICE_MATCH_S)
                 return True
             self.executor.spin_once(timeout_sec=0.1)
         return False
