@@ -83,15 +83,21 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
         stop(node)
 
 
+def logged(log: Path, text: str, process: subprocess.Popen, timeout_s: float = 60.0) -> bool:
+    """Whether `text` appears in a node's log within timeout_s, while the node runs."""
+    deadline = time.monotonic() + timeout_s
+    while text not in log.read_text() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.1)
+    return text in log.read_text()
+
+
 def test_the_simulated_robot_says_when_it_fell_behind_real_time(tmp_path):
     """Suspended for 0.4 s (as a starved core would hold it), the simulation says how far it fell behind: its
     measurements stopped meanwhile, which an executor sees as stale."""
     log = tmp_path / "cito-sim-robot.log"
     sim = launch("cito-sim-robot", 151 + os.getpid() % 20, log=log)
     try:
-        deadline = time.monotonic() + 60.0
-        while "simulating" not in log.read_text() and time.monotonic() < deadline and sim.poll() is None:
-            time.sleep(0.1)
+        assert logged(log, "simulating", sim), log.read_text()
         time.sleep(1.0)
         assert "behind real time" not in log.read_text()
         sim.send_signal(signal.SIGSTOP)
@@ -114,10 +120,7 @@ def test_ctrl_c_stops_the_node_and_its_planner_process_quietly(tmp_path):
         node = subprocess.Popen([str(BIN / "cito-executor-node"), "--ros-args", "-p", f"node.bag_directory:={tmp_path}"],
                                 env=env, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
     try:
-        deadline = time.monotonic() + 60.0
-        while "ready" not in log.read_text() and time.monotonic() < deadline and node.poll() is None:
-            time.sleep(0.1)
-        assert "ready" in log.read_text(), log.read_text()
+        assert logged(log, "ready", node), log.read_text()
         os.killpg(node.pid, signal.SIGINT)
         assert node.wait(timeout=20.0) == 0, log.read_text()
         time.sleep(0.5)  # the planner's process, if it outlived the node, has had its say

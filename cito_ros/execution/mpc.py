@@ -39,6 +39,11 @@ if TYPE_CHECKING:
 REPLAN_STAGE = 1  # the physical stage whose weights the replans take: the one every start runs after its first
 
 
+def executor_costs(settings: Settings) -> Settings:
+    """The settings with the executor's stage costs (executor.orientation_balance), for its plans and replans alike."""
+    return settings.with_overrides({"stages.orientation_balance": settings.executor.orientation_balance})
+
+
 def servo_gains(settings: Settings) -> tuple[np.ndarray, np.ndarray]:
     """The executor's joint servo: tracking.kp and kd times executor.servo_gain_scale."""
     scale = settings.executor.servo_gain_scale
@@ -62,9 +67,7 @@ class PushModel:
 
     def __init__(self, settings: Settings, contact_model_name: str, config: SceneConfig, target_position_m,
                  target_yaw_rad: float, object_scales: tuple[float, float] = (1.0, 1.0)):
-        # its replans' cost as the executor's plans' (executor_plan_settings)
-        self.settings = settings.with_overrides({"stages.orientation_balance": settings.executor.orientation_balance})
-        self.object_scales = object_scales
+        self.settings, self.object_scales = executor_costs(settings), object_scales
         self.scene = Scene(contact_model(contact_model_name, settings.contact_models), config)
         # the cube at rest in the model, the arm anywhere: the cube's resting height, and the goal checked there
         self.resting_state = self.scene.initial_state(start_configuration(settings.beta))

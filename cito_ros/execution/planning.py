@@ -13,7 +13,7 @@ import numpy as np
 
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, moved_beyond
 from cito_ros.execution.identify import identify
-from cito_ros.execution.mpc import push_model, servo_tracking
+from cito_ros.execution.mpc import executor_costs, push_model, servo_tracking
 from cito_ros.execution.policy import Policy
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.physical import side_start
@@ -35,11 +35,10 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
     servo_gain_scale): first plans in a median 3.9 s against 8.2 s in closed-loop --n 10, as many successes. Its
     pushes are on the near face only (side faces: docs/planner.md), unless `overrides` (more of them) say so."""
     executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
-    return dataclasses.replace(settings.with_overrides({
+    return dataclasses.replace(executor_costs(settings).with_overrides({
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": iterations,
         "stages.scripted.follow_face": True,
-        "stages.orientation_balance": executor.orientation_balance,
         # side starts spent the pushes' iteration budget: closed loop 58 of 72 with them, 64 without (docs/results.md)
         "stages.scripted.side_faces.enabled": False,
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
