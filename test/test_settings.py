@@ -64,6 +64,7 @@ def test_settings_round_trip_through_the_parameter_tree(settings):
     ({"horizon_s": -1.0}, "horizon_s must be positive"),
     ({"control_period_s": 2.0}, "whole number of control periods"),
     ({"control_period_s": 0.0125}, "whole number of timesteps"),
+    ({"executor.horizon_s": 2.5}, "executor.horizon_s 2.5 must be a positive whole number of control periods"),
     ({"beta": float("nan")}, "beta must be finite"),
     ({"weights.vscm.w3": -0.2}, "weights.vscm.w3 must be non-negative"),
     ({"weights.cccm.w5": None}, "weights.cccm.w5: missing"),

@@ -131,6 +131,8 @@ class ExecutorSettings:
     identified_spread: float = setting("those ends at least this and 1 / this times the middle", minimum=1.0)
     orientation_balance: float = setting("stages.orientation_balance for the executor's plans and replans: the "
                                          "corrections near the goal turn the cube as they move it", minimum=0.0)
+    horizon_s: float = setting("the horizon of the executor's pushes (s; horizon_s for them): a slower push's cube "
+                               "goes where the model has it in more worlds", positive=True)
     plan_iterations: int = setting("the planner's iterations for one push (solver.iteration_budget: the best plan "
                                    "by then is taken, the same however loaded the machine is)", minimum=1)
     plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)

@@ -86,14 +86,15 @@ class Settings:
     solver: SolverSettings = setting("solver")
 
     def check(self, path: str) -> None:
-        for where, horizon in (("", self), ("paper.", self.paper)):
+        executor = HorizonSettings(self.executor.horizon_s, self.control_period_s)
+        for where, period, horizon in (("", "", self), ("paper.", "paper.", self.paper), ("executor.", "", executor)):
             knots = horizon.horizon_s / horizon.control_period_s
             if abs(knots - round(knots)) > 1e-9 or round(knots) < 1:
                 raise ValueError(f"{where}horizon_s {horizon.horizon_s} must be a positive whole number of control "
-                                 f"periods {where}control_period_s {horizon.control_period_s}")
+                                 f"periods {period}control_period_s {horizon.control_period_s}")
             steps = horizon.control_period_s / self.scene.timestep_s
             if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
-                raise ValueError(f"{where}control_period_s {horizon.control_period_s} must be a whole number of "
+                raise ValueError(f"{period}control_period_s {horizon.control_period_s} must be a whole number of "
                                  f"timesteps {self.scene.timestep_s} (scene {self.scene.name})")
 
     @property
