@@ -36,7 +36,6 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
     pushes are on the near face only (side faces: docs/planner.md), unless `overrides` (more of them) say so."""
     executor, script, variants = settings.executor, settings.stages.scripted, settings.stages.scripted.variants
     return dataclasses.replace(executor_costs(settings).with_overrides({
-        "horizon_s": executor.horizon_s,
         "solver.time_limit_s": max(min(time_left_s, executor.plan_time_limit_s), 1.0),
         "solver.iteration_budget": iterations,
         "stages.scripted.follow_face": True,
@@ -151,10 +150,7 @@ def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[f
     waypoint = dataclasses.replace(
         goal, target_position_m=(x - aside_m * normal[1], y + aside_m * normal[0]),
         target_yaw_rad=yaw + abs(aside_m) / (abs(aside_m) + along_m) * cube_turn_rad(yaw, goal.target_yaw_rad))
-    # at the planner's horizon, which the side face's horizon_scale is of: at executor.horizon_s's 8 s its plans
-    # were not sturdy, and the executor's slower near-face pushes are for the last centimetres, not for a transit
-    plan_settings = executor_plan_settings(settings, job.time_left_s, executor.plan_iterations, worlds,
-                                           {"horizon_s": settings.horizon_s, **SIDE_ONLY})
+    plan_settings = executor_plan_settings(settings, job.time_left_s, executor.plan_iterations, worlds, SIDE_ONLY)
     request = _request(waypoint, job, 1.0, scales)
     try:
         start = side_start(plan_settings, request)
@@ -192,7 +188,10 @@ def _plan_to(settings: Settings, goal: ExecuteGoal, job: Job, fraction: float, i
     """_request's push planned within `iterations`, sturdy in `worlds` around the cube (friction and mass scales;
     None: executor.world_*_scales); ValueError where none can be planned."""
     request = _request(goal, job, fraction, object_scales)
-    return request, _plan(request, executor_plan_settings(settings, job.time_left_s, iterations, worlds))
+    # over executor.horizon_s; a side push keeps its horizon_scale of the planner's (at 2.5 x 3.2 s its plans were not
+    # sturdy), the near face's slower pushes being for the last centimetres, not for a transit
+    return request, _plan(request, executor_plan_settings(settings, job.time_left_s, iterations, worlds,
+                                                          {"horizon_s": settings.executor.horizon_s}))
 
 
 def work_in_line(executor: Executor, now_s: float, clock_s: Mapping[str, float] | None = None) -> Work | None:
