@@ -4,6 +4,7 @@ MuJoCo."""
 import math
 import os
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -13,10 +14,11 @@ from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.candidates import Executed, execute
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.results import tolerance_ratio
+from cito_ros.planner.results import world_ratio
 from cito_ros.planner.scripted import scripted_torques
 from cito_ros.planner.stages import physical_twin
 
+NOMINAL = tracking.WorldErrors(0.0, 0.0, 0.0)
 AT_GOAL = dict(position_error_m=0.01, orientation_error_rad=0.05, max_joint_speed_ratio=0.9,
                joint_range_excess_rad=0.0, rest_object_speed_m_s=0.0, tracked_position_error_m=0.012)
 
@@ -27,16 +29,28 @@ def with_worlds(settings, friction=(1.0, 0.5, 1.5), mass=(1.0, 0.5, 2.0)):
 
 def test_with_world_scales_a_plan_succeeds_only_if_tracked_to_the_goal_in_every_world(settings):
     settings = with_worlds(settings)
-    sturdy = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1), (0.019, 0.14)))
-    slides_off = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1), (0.05, 0.1)))  # overshoots on ice
-    turns_off = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.16), (0.01, 0.1)))
-    warned = Executed(**AT_GOAL, world_tracked_errors=((math.nan, math.nan), (0.01, 0.1)))
+    sturdy = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1, 0.0), (0.019, 0.14, 0.05)))
+    slides_off = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1, 0.0), (0.05, 0.1, 0.0)))  # overshoots on ice
+    turns_off = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.16, 0.0), (0.01, 0.1, 0.0)))
+    warned = Executed(**AT_GOAL, world_tracked_errors=((math.nan, math.nan, math.nan), (0.01, 0.1, 0.0)))
     assert Executed.succeeds(sturdy.rank(settings))
     assert not any(Executed.succeeds(e.rank(settings)) for e in (slides_off, turns_off, warned))
     # where none is sturdy, the one whose worst world is nearest the goal ranks first
     assert sturdy.rank(settings) < turns_off.rank(settings) < slides_off.rank(settings) < warned.rank(settings)
     # tracked in the model's own world alone (the default), the nominal tracking decides
     assert Executed.succeeds(Executed(**AT_GOAL).rank(settings))
+
+
+def test_a_plan_that_rocks_the_cube_past_the_tilt_limit_in_a_world_is_not_sturdy_there(settings):
+    """At the goal at rest in every world, but tilted 0.2 rad on the way in one (tracking.world_max_tilt_rad 0.1):
+    not sturdy, ranked by its tilt's share of the limit; with the tilt not judged (0), sturdy."""
+    settings = with_worlds(settings)
+    upright = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1, 0.0), (0.019, 0.14, 0.09)))
+    rocked = Executed(**AT_GOAL, world_tracked_errors=((0.015, 0.1, 0.0), (0.01, 0.05, 0.2)))
+    assert settings.tracking.world_max_tilt_rad == 0.1
+    assert Executed.succeeds(upright.rank(settings)) and not Executed.succeeds(rocked.rank(settings))
+    assert rocked.worst_world(settings) == pytest.approx(2.0) and upright.rank(settings) < rocked.rank(settings)
+    assert Executed.succeeds(rocked.rank(settings.with_overrides({"tracking.world_max_tilt_rad": 0.0})))
 
 
 def test_a_plan_is_tracked_in_each_scaled_world_and_the_cube_ends_elsewhere_there(settings):
@@ -48,8 +62,16 @@ def test_a_plan_is_tracked_in_each_scaled_world_and_the_cube_ends_elsewhere_ther
     assert len(executed.world_tracked_errors) == 3
     # the model's own pair is the nominal tracking, position and orientation within the tolerances
     assert executed.world_tracked_errors[0][0] == executed.tracked_position_error_m
-    positions = [p for p, _ in executed.world_tracked_errors]
+    positions = [p for p, _, _ in executed.world_tracked_errors]
     assert all(math.isfinite(p) for p in positions) and len(set(positions)) == 3
+    # the nominal's tilt: the cube's top against world z over the tracking and the hold, from MuJoCo's rotation
+    motions = executed.motions
+    rotation = np.empty(9)
+    tilts = []
+    for quaternion in np.vstack([motions.tracked.object_quaternion, motions.tracked_rest.object_quaternion]):
+        mujoco.mju_quat2Mat(rotation, quaternion / np.linalg.norm(quaternion))
+        tilts.append(math.acos(min(1.0, rotation[8])))
+    assert executed.world_tracked_errors[0].tilt_rad == pytest.approx(max(tilts), abs=1e-9) and max(tilts) > 0
     world = executor.simulator.in_world(0.5, 2.0)
     model, scaled = executor.scene.model, world.scene.model
     body = model.geom_bodyid[executor.scene.object_geom_id]
@@ -73,10 +95,10 @@ def test_the_worlds_scenes_are_shared_by_simulators_of_one_scene_and_tracking_st
                                    scripted_torques(executor, settings.stages.scripted, settings.tracking))),
                                settings.tracking)
     every = tracking.world_errors(executor.simulator, executor.initial_state, reference, settings.tracking,
-                                  executor.task, (0.0, 0.0))
+                                  executor.task, NOMINAL)
     seen = []
     first_two = tracking.world_errors(executor.simulator, executor.initial_state, reference, settings.tracking,
-                                      executor.task, (0.0, 0.0), stop=lambda error: seen.append(error) or len(seen) == 2)
+                                      executor.task, NOMINAL, stop=lambda error: seen.append(error) or len(seen) == 2)
     assert len(every) == 4 and first_two == every[:3] and seen == every[1:3]
 
 
@@ -98,7 +120,7 @@ def test_a_plan_says_whether_the_controller_brings_the_cube_to_the_goal_in_every
         problem = build_problem(horizon, PushRequest("vscm", **push)).problem
         again = execute(physical_twin(problem, problem.cost), result.knot_torques_Nm, checked.tracking)
         assert len(again.world_tracked_errors) == 3
-        assert result.sturdy == all(tolerance_ratio(*errors, checked.task) < 1.0
+        assert result.sturdy == all(world_ratio(errors, checked.task, checked.tracking.world_max_tilt_rad) < 1.0
                                     for errors in again.world_tracked_errors)
         assert result.sturdy == (tolerance_m == 0.02), again.world_tracked_errors
 
@@ -114,7 +136,7 @@ def test_worlds_tracked_side_by_side_give_the_errors_tracked_one_after_the_other
 
     def errors(stop=None):
         return tracking.world_errors(executor.simulator, executor.initial_state, reference, settings.tracking,
-                                     executor.task, (0.0, 0.0), stop)
+                                     executor.task, NOMINAL, stop)
 
     side_by_side = errors()
     pool, threads = tracking._world_pool()

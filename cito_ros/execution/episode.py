@@ -21,13 +21,13 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from cito_ros.execution.estimator import tilt_of, tipped_over
+from cito_ros.execution.estimator import tipped_over
 from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
 from cito_ros.execution.planning import work_in_line
 from cito_ros.execution.policy import bias_torques, hold_torques
 from cito_ros.execution.world import SimulatedWorld
 from cito_ros.planner.plan import plan_push
-from cito_ros.planner.task import yaw_of
+from cito_ros.planner.task import tilt_of, yaw_of
 from cito_ros.settings import Settings
 
 REST_WAIT_S = 3.0        # the longest the arm is held after an execution for the cube to come to rest

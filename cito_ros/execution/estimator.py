@@ -16,15 +16,9 @@ import numpy as np
 
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.model.scene import Scene
-from cito_ros.planner.task import yaw_of
+from cito_ros.planner.task import tilt_of, yaw_of
 
 FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
-
-
-def tilt_of(quaternion: np.ndarray) -> float:
-    """The angle (rad) between the cube's top (its body z) and world z: 0 upright."""
-    w, x, y, z = np.asarray(quaternion, dtype=float) / np.linalg.norm(quaternion)
-    return math.acos(min(1.0, max(-1.0, 1 - 2 * (x * x + y * y))))
 
 
 def tipping_tilt_rad(scene: Scene) -> float:

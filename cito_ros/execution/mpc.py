@@ -26,7 +26,7 @@ from cito_ros.model.simulator import Simulator
 from cito_ros.planner import tracking
 from cito_ros.planner.builder import PushRequest, make_task, scene_config
 from cito_ros.planner.problem import PushProblem
-from cito_ros.planner.results import tolerance_ratio
+from cito_ros.planner.results import world_ratio
 from cito_ros.planner.task import PushTask
 from cito_ros.planner.solvers.base import IterationMonitor
 from cito_ros.planner.solvers.ilqr import IlqrSolver, feedback_gains
@@ -131,15 +131,15 @@ class PushModel:
 
     def worst_world(self, simulator: Simulator, state: np.ndarray, reference, task: PushTask,
                     bound: float = math.inf) -> float:
-        """The largest tolerance_ratio at rest against `task` of `reference` (a Trajectory of `simulator`'s
-        horizon) tracked by the servo from `state` (servo_tracking) in each world of executor.world_*_scales (below
-        1: sturdy there); above `bound`, the first world's above it (the rest are not tracked: a replan is
-        rejected there whatever they give, and tracking them all was 40 % of a replan)."""
-        def ratio(error: tuple[float, float]) -> float:
-            return tolerance_ratio(*error, self.settings.task)
+        """The largest world_ratio (at rest against `task`, and the cube's tilt on the way) of `reference` (a
+        Trajectory of `simulator`'s horizon) tracked by the servo from `state` (servo_tracking) in each world of
+        executor.world_*_scales (below 1: sturdy there); above `bound`, the first world's above it (the rest are not
+        tracked: a replan is rejected there whatever they give, and tracking them all was 40 % of a replan)."""
+        def ratio(error: tracking.WorldErrors) -> float:
+            return world_ratio(error, self.settings.task, self.servo_tracking.world_max_tilt_rad)
 
-        errors = tracking.world_errors(simulator, state, reference, self.servo_tracking, task, (0.0, 0.0),
-                                       stop=lambda error: ratio(error) > bound)
+        errors = tracking.world_errors(simulator, state, reference, self.servo_tracking, task,
+                                       tracking.WorldErrors(0.0, 0.0, 0.0), stop=lambda error: ratio(error) > bound)
         return max(map(ratio, errors), default=0.0)
 
     def policy(self, start_s: float, state: np.ndarray, torques: np.ndarray, gains: np.ndarray | None = None,

@@ -47,7 +47,7 @@ class Executed:
     rest_object_speed_m_s: float               # after the hold
     tracked_position_error_m: float = math.nan  # by a PD joint trajectory controller; nan: not tracked
     offset_tracked_error_m: float = math.nan    # the worst with the reference off (tracking.reference_offsets)
-    world_tracked_errors: tuple = ()            # (position, orientation) tracked in each of tracking.world_*_scales
+    world_tracked_errors: tuple = ()            # tracking.WorldErrors tracked in each of tracking.world_*_scales
     motions: Motions | None = field(default=None, compare=False, repr=False)  # when tracked
 
     def rank(self, settings: Settings) -> tuple:
@@ -63,16 +63,16 @@ class Executed:
         sturdy = not settings.tracking.reference_offsets or all(
             error < task.success_position_error_m for error in (self.tracked_position_error_m,
                                                                  self.offset_tracked_error_m))
-        worst_world = self.worst_world(task)
+        worst_world = self.worst_world(settings)
         sturdy = sturdy and worst_world < 1.0
         return (beyond_limits, not at_goal, not trackable, not sturdy, worst_world,
                 self.position_error_m / task.success_position_error_m
                 + self.orientation_error_rad / task.success_orientation_error_rad)
 
-    def worst_world(self, task) -> float:
-        """The largest tolerance_ratio over world_tracked_errors (0: none tracked): below 1, sturdy in them all."""
-        return max((results.tolerance_ratio(position, orientation, task)
-                    for position, orientation in self.world_tracked_errors), default=0.0)
+    def worst_world(self, settings: Settings) -> float:
+        """The largest world_ratio over world_tracked_errors (0: none tracked): below 1, sturdy in them all."""
+        return max((results.world_ratio(errors, settings.task, settings.tracking.world_max_tilt_rad)
+                    for errors in self.world_tracked_errors), default=0.0)
 
     @staticmethod
     def succeeds(rank: tuple) -> bool:
@@ -114,9 +114,9 @@ def execute(executor: PushProblem, torques: np.ndarray, gains: TrackingSettings)
                                                       gains.reference_offset_rad, seed=12345)  # the same for every plan
     tracked = tracking.track(simulator, executor.initial_state, trajectory, gains)
     tracked_rest = tracking.held_motion(simulator, tracked.final_state, gains)
-    tracked_errors = tracking.errors_at_rest(tracked_rest, executor.task)
+    tracked_errors = tracking.motion_errors(tracked, tracked_rest, executor.task)
     worlds = tracking.world_errors(simulator, executor.initial_state, trajectory, gains, executor.task, tracked_errors)
-    return dataclasses.replace(executed, tracked_position_error_m=tracked_errors[0],
+    return dataclasses.replace(executed, tracked_position_error_m=tracked_errors.position_m,
                                offset_tracked_error_m=max(offset_errors, default=math.nan),
                                world_tracked_errors=tuple(worlds),
                                motions=Motions(trajectory, rest, tracked, tracked_rest))

@@ -148,7 +148,7 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
         scene=discovery.scene,
         sturdy=bool(outcome.executed is not None and outcome.executed.world_tracked_errors
-                    and outcome.executed.worst_world(settings.task) < 1.0),
+                    and outcome.executed.worst_world(settings) < 1.0),
         note=outcome.note,
         aim_position_m=None if task.aim_position_m is None else task.aim_position_m.copy(),
     )

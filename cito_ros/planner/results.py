@@ -144,6 +144,14 @@ def tolerance_ratio(position_m: float, orientation_rad: float, task: TaskSetting
     return max(position_m / task.success_position_error_m, orientation_rad / task.success_orientation_error_rad)
 
 
+def world_ratio(errors, task: TaskSettings, max_tilt_rad: float) -> float:
+    """tolerance_ratio of a world's (position, orientation, tilt) errors (tracking.WorldErrors), or the tilt as a
+    fraction of max_tilt_rad where that is larger (max_tilt_rad 0: the tilt not judged)."""
+    position_m, orientation_rad, tilt_rad = errors
+    ratio = tolerance_ratio(position_m, orientation_rad, task)
+    return max(ratio, tilt_rad / max_tilt_rad) if max_tilt_rad > 0 and math.isfinite(ratio) else ratio
+
+
 def at_goal(position_error_m: float, orientation_error_rad: float, rest_object_speed_m_s: float, task: TaskSettings,
             fraction: float = 1.0) -> bool:
     """The object at rest (task.rest_speed_m_s) within `fraction` of the success tolerances of the goal. NaN

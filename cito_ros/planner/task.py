@@ -33,6 +33,14 @@ def yaw_of(quaternion: np.ndarray) -> float | np.ndarray:
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+def tilt_of(quaternion: np.ndarray) -> float | np.ndarray:
+    """The angle (rad) between the cube's top (its body z) and world z, 0 upright, of a quaternion (w, x, y, z) or of
+    each of an (..., 4) array of them."""
+    q = np.asarray(quaternion, dtype=float)
+    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    return np.arccos(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0))
+
+
 def turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
     """The turn (rad) from one yaw to another the shorter way round, in [-pi, pi]: counter-clockwise positive."""
     return math.remainder(to_yaw_rad - from_yaw_rad, 2 * math.pi)

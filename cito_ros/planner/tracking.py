@@ -17,13 +17,14 @@ import os
 import threading
 import weakref
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Callable, NamedTuple, Protocol
 
 import mujoco
 import numpy as np
 
 from cito_ros.model import _native
 from cito_ros.model.simulator import Simulator, Trajectory, warning_counts
+from cito_ros.planner.task import tilt_of
 from cito_ros.settings import TrackingSettings
 
 
@@ -90,21 +91,30 @@ def held_motion(simulator: Simulator, state: np.ndarray, gains: TrackingSettings
     return pd_motion(simulator, state, np.tile(held, (steps, 1)), np.zeros((steps, len(held))), gains)
 
 
+class WorldErrors(NamedTuple):
+    """A reference tracked (and held) in one world: the task's errors where the cube comes to rest, and how far it
+    tilted from upright on the way."""
+
+    position_m: float
+    orientation_rad: float
+    tilt_rad: float
+
+
 def world_errors(simulator: Simulator, initial_state: np.ndarray, reference: JointReference,
-                 gains: TrackingSettings, task, nominal: tuple[float, float],
-                 stop: Callable[[tuple[float, float]], bool] | None = None) -> list[tuple[float, float]]:
-    """The task's position and orientation errors at rest of `reference` tracked (and held) in each world of
-    gains.world_friction_scales and world_mass_scales other than the model's own (1, 1), and first `nominal`,
-    its tracking in the model, where there are any: held to the tolerances in the other worlds, a plan is held
-    to them in its own too (a plan the executor's servo tracked to 0.24 rad off in the model was taken). With
-    `stop`, the worlds after the first whose errors it holds for are not tracked (a caller that rejects the plan
-    there needs no more)."""
+                 gains: TrackingSettings, task, nominal: WorldErrors,
+                 stop: Callable[[WorldErrors], bool] | None = None) -> list[WorldErrors]:
+    """The WorldErrors of `reference` tracked (and held) in each world of gains.world_friction_scales and
+    world_mass_scales other than the model's own (1, 1), and first `nominal`, its tracking in the model, where there
+    are any: held to the tolerances in the other worlds, a plan is held to them in its own too (a plan the executor's
+    servo tracked to 0.24 rad off in the model was taken). With `stop`, the worlds after the first whose errors it
+    holds for are not tracked (a caller that rejects the plan there needs no more)."""
     worlds = [simulator.in_world(friction, mass) for friction, mass in zip(gains.world_friction_scales,
                                                                            gains.world_mass_scales)
               if not (friction == 1.0 and mass == 1.0)]
 
-    def errors_in(world: Simulator) -> tuple[float, float]:
-        return rest_errors(world, track(world, initial_state, reference, gains).final_state, task, gains)
+    def errors_in(world: Simulator) -> WorldErrors:
+        tracked = track(world, initial_state, reference, gains)
+        return motion_errors(tracked, held_motion(world, tracked.final_state, gains), task)
 
     # as many worlds at a time as the pool has threads (the native tracking runs without the GIL): the same
     # errors as one after the other, a world after the first that `stop` holds for tracked and left out
@@ -116,6 +126,16 @@ def world_errors(simulator: Simulator, initial_state: np.ndarray, reference: Joi
             if stop is not None and stop(error):
                 return [nominal, *errors]
     return [nominal, *errors] if errors else []
+
+
+def motion_errors(tracked: Trajectory, held: Trajectory | None, task) -> WorldErrors:
+    """The WorldErrors of a tracked motion and its held_motion: errors_at_rest, and the cube's largest tilt over
+    both (NaN where MuJoCo warned, as the errors)."""
+    position_m, orientation_rad = errors_at_rest(held, task)
+    if not math.isfinite(position_m):
+        return WorldErrors(position_m, orientation_rad, math.nan)
+    return WorldErrors(position_m, orientation_rad,
+                       float(max(np.max(tilt_of(tracked.object_quaternion)), np.max(tilt_of(held.object_quaternion)))))
 
 
 _WORLD_POOLS: dict[int, concurrent.futures.ThreadPoolExecutor] = {}

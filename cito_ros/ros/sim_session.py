@@ -26,10 +26,9 @@ from rclpy.experimental import EventsExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from cito_ros.execution.estimator import tilt_of
 from cito_ros.execution.executor import ExecuteGoal
 from cito_ros.execution.world import Mismatch
-from cito_ros.planner.task import yaw_of
+from cito_ros.planner.task import tilt_of, yaw_of
 
 BIN = Path(sys.executable).parent
 REST_WAIT_S = 3.0   # after an execution, the longest wait for the true cube to come to rest

@@ -38,6 +38,9 @@ class TrackingSettings:
         "the PD controller also brings the object within the success tolerances in each", positive=True)
     world_mass_scales: tuple[float, ...] = setting("and whose object's mass is this times the model's",
                                                    positive=True)
+    world_max_tilt_rad: float = setting(
+        "and only if in each of those worlds the object never tilts further than this from upright on the way "
+        "(rad; 0: its tilt not judged)", minimum=0.0)
     hold_s: float = setting(
         "after a plan's last point the controller holds it at rest this long, as a joint trajectory controller "
         "does; every execution is judged where the object is then, not at the end of the horizon (s)", minimum=0.0)
