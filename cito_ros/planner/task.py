@@ -37,8 +37,8 @@ def tilt_of(quaternion: np.ndarray) -> float | np.ndarray:
     """The angle (rad) between the cube's top (its body z) and world z, 0 upright, of a quaternion (w, x, y, z) or of
     each of an (..., 4) array of them."""
     q = np.asarray(quaternion, dtype=float)
-    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
-    return np.arccos(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0))
+    x, y = q[..., 1], q[..., 2]  # the rotation's zz entry, 1 - 2 (x^2 + y^2) of the unit quaternion
+    return np.arccos(np.clip(1 - 2 * (x * x + y * y) / np.sum(q * q, axis=-1), -1.0, 1.0))
 
 
 def turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:

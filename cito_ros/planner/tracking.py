@@ -134,8 +134,8 @@ def motion_errors(tracked: Trajectory, held: Trajectory | None, task) -> WorldEr
     position_m, orientation_rad = errors_at_rest(held, task)
     if not math.isfinite(position_m):
         return WorldErrors(position_m, orientation_rad, math.nan)
-    return WorldErrors(position_m, orientation_rad,
-                       float(max(np.max(tilt_of(tracked.object_quaternion)), np.max(tilt_of(held.object_quaternion)))))
+    return WorldErrors(position_m, orientation_rad, max(float(tilt_of(motion.object_quaternion).max())
+                                                        for motion in (tracked, held)))
 
 
 _WORLD_POOLS: dict[int, concurrent.futures.ThreadPoolExecutor] = {}
