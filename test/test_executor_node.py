@@ -16,7 +16,7 @@ from action_msgs.msg import GoalStatus
 from cito_msgs.action import ExecutePush
 
 from cito_ros.cli.closed_loop_ros import closed_loop_episode
-from cito_ros.execution.executor import ExecuteGoal
+from cito_ros.execution.goal import ExecuteGoal
 from cito_ros.ros.sim_session import BIN, Operator, stop
 from cito_ros.studies import closed_loop, targets
 
@@ -81,6 +81,41 @@ def test_the_executor_brings_the_cube_to_the_goal_in_a_world_that_open_loop_miss
     finally:
         operator.close()
         stop(node)
+
+
+def test_an_execution_plans_from_the_cube_the_camera_sees_now_not_from_poses_before_a_gap(tmp_path):
+    """The robot is replaced while no execution runs (its driver restarted, a new scene: here a simulated robot
+    whose cube is 3 cm further along y): the next execution's first push is planned from the new robot's cube, not
+    from a mean with the poses the node kept from before (older than executor.stale_after_s)."""
+    domain = 171 + os.getpid() % 20
+    # stale after 2 s, as for the module's robot below: a new simulated robot's first second can stall its poses
+    node = launch("cito-executor-node", domain, f"node.bag_directory:={tmp_path}", "executor.stale_after_s:=2.0")
+    operator = Operator(domain)
+    sim = launch("cito-sim-robot", domain, "beta:=7.0", "offset_y_m:=0.03")
+    try:
+        assert operator.wait_for_robot(), "the simulated robot or the executor node did not come up"
+        operator.spin(1.0)  # the node keeps the last few cube poses, 3 cm along y
+        stop(sim)
+        operator.spin(2.5)  # those poses older than stale_after_s now
+        sim = launch("cito-sim-robot", domain, "beta:=7.0")
+        assert operator.wait_for_robot()
+        handle = operator.start(GOAL)
+        assert operator.feedback, f"the execution did not begin: {operator.wait(handle.get_result_async()).result}"
+        ending = handle.get_result_async()
+        operator.spin_until(lambda: any(f.phase == "pushing" for f in operator.feedback) or ending.done(), 120.0)
+        assert not ending.done(), ending.result().result.message
+        operator.wait(handle.cancel_goal_async(), 30.0)
+        result = operator.wait(ending).result
+        bag = Path(result.bag_path)
+        assert wait_for_bag(bag)
+        recorded = read_with_mcap(bag)
+        seen = np.array([[m.pose.position.x, m.pose.position.y] for _, m in recorded["/object/pose"][:10]])
+        first = recorded["/cito/predicted_object_path"][0][1].poses[0].pose.position
+        assert np.hypot(first.x - seen[:, 0].mean(), first.y - seen[:, 1].mean()) < 0.003, (first, seen.mean(axis=0))
+    finally:
+        operator.close()
+        stop(node)
+        stop(sim)
 
 
 def logged(log: Path, text: str, process: subprocess.Popen, timeout_s: float = 60.0) -> bool:

@@ -1,13 +1,17 @@
 """Pushes in sequence: where the executor's push to the goal would not land alike in its worlds, and pushes are left,
 it pushes to a waypoint partway first; where the goal is outside the near face's friction cone, across on a side face
-first (cito_ros.execution.planning.compute). Real MuJoCo, the real planner."""
+first; where no near-face push would bring the cube closer, on a side face to the goal
+(cito_ros.execution.planning.compute). Real MuJoCo, the real planner."""
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from cito_ros.execution.executor import ExecuteGoal, Job
+from cito_ros.execution.executor import Job
+from cito_ros.execution.goal import ExecuteGoal, predict
+from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import push_model
 from cito_ros.execution.planning import compute
 from cito_ros.model.scene import start_configuration
@@ -33,6 +37,13 @@ OBLIQUE_BETA = 5.962
 EDGE = ExecuteGoal((1.193, 0.003), 0.253)
 EDGE_CUBE = ((1.1524, -0.0077), 0.1607)
 EDGE_BETA = 6.52
+
+# seed 1's goal 9 of `closed-loop --n 20` in the friction x0.5, mass x2 world on the fixed clock 2 / 0.1 s: the job of
+# its second push as the executor gave it (data/beside_after_a_push.npz: the arm's start, the cube as the camera saw
+# it at rest, 2.0 cm beside the goal and 0.2 cm past it along the near face's normal, 0.11 rad off, and the first
+# push as measured, which identify reads); the execution had ended there with "no closer push"
+STUCK = ExecuteGoal((1.1070706745527696, 0.039845421473472586), -0.2883252573924895)
+STUCK_DATA = Path(__file__).parent / "data" / "beside_after_a_push.npz"
 
 
 def at_planners_horizon(settings):
@@ -130,3 +141,18 @@ def test_a_goal_outside_the_near_faces_friction_cone_is_first_pushed_across_on_a
     assert last.face == 0 and last.target == (OBLIQUE.target_position_m, OBLIQUE.target_yaw_rad)
     near, _, _ = first_push(settings, 2)
     assert near.face == 0
+
+
+def test_a_cube_beside_the_goal_that_no_near_face_push_brings_closer_is_pushed_there_on_a_side_face(settings):
+    """After a push (pushes are left and made), from a cube the near face can only push further past the goal, the
+    side face's push to the goal, sturdy, that the model has bring the cube closer: the executor ended there before."""
+    data = np.load(STUCK_DATA)
+    cube = (data["x"], float(data["yaw"]))
+    job = Job("plan", 0.0, None, data["q"], cube, float(data["time_left_s"]), None, math.nan, int(data["pushes_left"]),
+              (Observed(data["start_state"], data["joints"], data["poses"]),))
+    scene = push_model(settings, STUCK).scene
+    near = compute(settings.with_overrides({"executor.side_when_stuck": False}), STUCK, job)
+    assert near.face == 0 and not predict(settings, scene, STUCK, cube, near).closer  # the premise
+    side = compute(settings, STUCK, job)
+    assert side.face != 0 and side.sturdy and side.target == (STUCK.target_position_m, STUCK.target_yaw_rad)
+    assert predict(settings, scene, STUCK, cube, side).closer

@@ -12,7 +12,8 @@ from cito_ros.execution.planning import compute, work_in_line
 from cito_ros.execution.policy import Policy
 from cito_ros.execution.world import JointReading
 from cito_ros.model.scene import start_configuration
-from test_execution import deliver, push_under_way, seen_at_rest, started
+from test_estimator import seen_at_rest
+from test_execution import deliver, push_under_way, started
 
 
 # replans on, with a budget a slow moment does not use up before the replan's first iteration: these tests are about a

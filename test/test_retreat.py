@@ -6,7 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cito_ros.execution.executor import Ending, ExecuteGoal, Phase
+from cito_ros.execution.executor import Ending, Phase
+from cito_ros.execution.goal import ExecuteGoal
 from cito_ros.execution.planning import work_in_line
 from cito_ros.execution.policy import Retreat
 from test_execution import deliver, ending_at, judged_once_drawn_back, retreating, started

@@ -15,7 +15,7 @@ import numpy as np
 
 from cito_ros.execution.episode import TIGHT_YAW_RAD, at_goal
 from cito_ros.execution.estimator import tipped_over
-from cito_ros.execution.executor import ExecuteGoal
+from cito_ros.execution.goal import ExecuteGoal
 from cito_ros.model.scene import Scene, start_configuration
 from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.ros.sim_session import Operator, robot_parameters, spawn, stop

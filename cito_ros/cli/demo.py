@@ -79,7 +79,7 @@ def _execute(args) -> int:
     """The push closed loop through the nodes and open loop in process, in DEMO_WORLD, side by side."""
     from cito_ros.execution.episode import at_goal, run_open_loop
     from cito_ros.execution.estimator import tipped_over
-    from cito_ros.execution.executor import ExecuteGoal
+    from cito_ros.execution.goal import ExecuteGoal
     from cito_ros.execution.world import Mismatch, SimulatedWorld
     from cito_ros.model.scene import start_configuration
     from cito_ros.ros.sim_session import Operator, robot_parameters, spawn, stop

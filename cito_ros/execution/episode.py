@@ -22,7 +22,8 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.estimator import tipped_over
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
+from cito_ros.execution.executor import Ending, Executor, Phase
+from cito_ros.execution.goal import ExecuteGoal
 from cito_ros.execution.planning import work_in_line
 from cito_ros.execution.policy import bias_torques, hold_torques
 from cito_ros.execution.world import SimulatedWorld

@@ -31,12 +31,12 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over
+from cito_ros.execution.goal import ExecuteGoal, cube_in, moved_beyond, predict
 from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import push_model
 from cito_ros.execution.policy import Policy, Retreat, robot_torques
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.planner.results import tolerance_ratio
-from cito_ros.planner.task import cube_turn_rad, yaw_of
 from cito_ros.settings import Settings
 
 
@@ -58,31 +58,6 @@ class Ending(enum.Enum):
     TIME_LIMIT = "time_limit"
     STALE_MEASUREMENTS = "stale_measurements"
     NUMERICAL_ERROR = "numerical_error"
-
-
-@dataclass(frozen=True)
-class ExecuteGoal:
-    target_position_m: tuple[float, float]
-    target_yaw_rad: float = 0.0
-    contact_model: str = "vscm"
-    scene: str | None = None                # a scene in config/scenes; None: the settings' scene
-    time_limit_s: float = 0.0               # 0: executor.time_limit_s
-
-    def errors(self, position_m, yaw_rad: float) -> tuple[float, float]:
-        """The position (m) and yaw (rad) error of a cube at (x, y) with yaw_rad against this goal."""
-        return pose_errors(position_m, yaw_rad, self.target_position_m, self.target_yaw_rad)
-
-
-def pose_errors(position_m, yaw_rad: float, other_position_m, other_yaw_rad: float) -> tuple[float, float]:
-    """How far apart two planar poses of the cube are: in position (m, x and y) and in yaw (rad, task.cube_turn_rad)."""
-    return float(math.hypot(position_m[0] - other_position_m[0], position_m[1] - other_position_m[1])), \
-        abs(cube_turn_rad(other_yaw_rad, yaw_rad))
-
-
-def moved_beyond(settings: Settings, pose, other_pose) -> bool:
-    """Whether two poses of the cube ((x, y), yaw) lie further apart than executor.moved_fraction of the task's
-    tolerances (the larger of position and yaw): the cube has moved, or a push moves it."""
-    return tolerance_ratio(*pose_errors(*pose, *other_pose), settings.task) > settings.executor.moved_fraction
 
 
 @dataclass(frozen=True)
@@ -197,7 +172,7 @@ class Executor:
             work, self._pending = self._pending, None
             if work.kind == "replan":
                 self.policy = work.policy
-            elif self._moved_since(work.policy, now_s):
+            elif self._moved_since(work.policy):
                 self.stale_plans += 1
             else:  # counted as made now: one planned ahead is dropped if the cube is found at the goal
                 self.policy, self.phase, self._push_end_s = work.policy, Phase.PUSHING, work.policy.end_s
@@ -229,14 +204,11 @@ class Executor:
                                                self.settings.executor) if self.policy.face and len(arm) > 1 else \
                 Retreat.between(now_s, joints.q, self._home_q, limit, self.settings.executor)
 
-    def _moved_since(self, policy: Policy, now_s: float) -> bool:
-        """Whether the cube has left where a push was planned for it (moved_beyond)."""
-        return moved_beyond(self.settings, self.object_pose(now_s), self._cube_in(policy.reference[0]))
+    def _moved_since(self, policy: Policy) -> bool:
+        """Whether the cube has left where a push was planned for it (moved_beyond): the rest window's mean against
+        the plan's start, which is one too."""
+        return moved_beyond(self.settings, self.estimator.resting_pose(), cube_in(self.model.scene, policy.reference[0]))
 
-    def _cube_in(self, state: np.ndarray) -> tuple[np.ndarray, float]:
-        """The cube's (x, y) and yaw in a state of the model."""
-        qpos = self.model.scene.object_qpos(state)
-        return qpos[:2], yaw_of(qpos[3:7])
 
     def _off_path_m(self) -> float:
         """How far the cube's last measured position is from where the running push's reference has it at that
@@ -302,15 +274,19 @@ class Executor:
             if self.phase is not Phase.PLANNING and not ahead and \
                     not (self.phase is Phase.PUSHING and executor.replans(self.policy.face)):
                 return None
-            state = self.estimator.state(self._joints, now_s, self.cube_at_rest)
+            # a push from rest is planned from where the camera's rest window has the cube, whatever its noise says of
+            # the cube's speed (over ten poses it passes rest_speed_m_s now and then: through the nodes a plan then
+            # started from one noisy pose carried forward, 5 mm off, and was dropped as stale when it became due)
+            replan = self.phase is Phase.PUSHING
+            state = self.estimator.state(self._joints, now_s, not replan or self.cube_at_rest)
             back_q = self.model.draw_back_q(state) if self.phase is Phase.PLANNING and not self._retreat else None
             if back_q is not None:  # the arm begins against the cube: drawn back first, its pushes start there
                 self.phase, self._home_q = Phase.RETREATING, back_q
                 self._retreat = Retreat.between(now_s, self._joints.q, back_q, self.model.scene.velocity_limit,
                                                 executor)
                 return None
-            return Job("replan" if self.phase is Phase.PUSHING else "plan", now_s, state,
-                       (self._home_q if ahead else self._joints.q).copy(), self.object_pose(now_s),
+            return Job("replan" if replan else "plan", now_s, state, (self._home_q if ahead else self._joints.q).copy(),
+                       self.object_pose(now_s) if replan else self.estimator.resting_pose(),
                        self.time_limit_s - (now_s - self.started_s), self.policy, self._push_end_s,
                        executor.max_pushes - self.pushes - 1, tuple(self.observed))
 
@@ -333,22 +309,17 @@ class Executor:
             if outcome is None:
                 return None
             if job.kind == "plan" and self.pushes:
-                # a push that would not bring the cube closer (both errors against their tolerances: a cube at the
-                # place but turned is brought closer by a push that turns it), or would hardly move it (a plan that
-                # never touches a cube within its waypoint's tolerances is "sturdy" there: five such ran out the
-                # time), is not made, nor left to run out the time
-                position, orientation = self.goal.errors(*job.object_pose)
-                start, cube = self._cube_in(outcome.reference[0]), self._cube_in(outcome.final_state)
-                predicted, moved = self.goal.errors(*cube), pose_errors(*start, *cube)
-                task = self.settings.task
-                if tolerance_ratio(*predicted, task) >= tolerance_ratio(position, orientation, task) or \
-                        not moved_beyond(self.settings, start, cube):
+                # a push that would not bring the cube closer, nor hardly move it, is not made, nor left to run out
+                # the time (Prediction)
+                seen = predict(self.settings, self.model.scene, self.goal, job.object_pose, outcome)
+                if not seen.closer:
+                    position, orientation = self.goal.errors(*job.object_pose)
+                    (off_m, off_rad), (moved_m, moved_rad) = seen.predicted, seen.moved
                     self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                         f"{100 * position:.2f} cm and {orientation:.3f} rad from the "
-                                                        f"goal, and the best push found from the near face would "
-                                                        f"leave it {100 * predicted[0]:.2f} cm and "
-                                                        f"{predicted[1]:.3f} rad off, moving it {100 * moved[0]:.2f} "
-                                                        f"cm and {moved[1]:.3f} rad",
+                                                        f"goal, and the best push found would leave it "
+                                                        f"{100 * off_m:.2f} cm and {off_rad:.3f} rad off, moving it "
+                                                        f"{100 * moved_m:.2f} cm and {moved_rad:.3f} rad",
                               None if self._joints is None else self._joints.q, "no_closer_push")
                     return None
             effective = max(job.now_s + elapsed_s, outcome.start_s)  # never before it is computed, nor its start

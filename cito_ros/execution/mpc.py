@@ -34,7 +34,7 @@ from cito_ros.planner.stages import stage_cost, touch_profile
 from cito_ros.settings import SceneConfig, Settings, TrackingSettings
 
 if TYPE_CHECKING:
-    from cito_ros.execution.executor import ExecuteGoal
+    from cito_ros.execution.goal import ExecuteGoal
 
 REPLAN_STAGE = 1  # the physical stage whose weights the replans take: the one every start runs after its first
 

@@ -11,7 +11,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Failure, Job, Work, moved_beyond
+from cito_ros.execution.executor import Ending, Executor, Failure, Job, Work
+from cito_ros.execution.goal import ExecuteGoal, moved_beyond, predict
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import executor_costs, push_model, servo_tracking
 from cito_ros.execution.policy import Policy
@@ -58,7 +59,8 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     first (the plan to a goal at the arm's reach that goes beyond the joints' range and never touches the cube
     had been made, and the execution ended with no closer push where the waypoint's moved it closer). After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
-    it."""
+    it; where that push would not bring the cube closer (the executor ends there), the side face's push to the goal
+    is planned (executor.side_when_stuck) and made where it is sturdy and does."""
     if job.kind == "replan":  # in the model the running push was planned in: its knots, its cube
         return push_model(_knotted(settings, job.running.control_period_s), goal, job.running.object_scales).replan(
             job.now_s, job.state, job.running, settings.executor.replan_budget_s)
@@ -87,7 +89,15 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
-    return _policy(settings, goal, job, request, result, scales)
+    policy = _policy(settings, goal, job, request, result, scales)
+    if executor.side_when_stuck and job.pushes_left < executor.max_pushes - 1 and \
+            not predict(settings, model.scene, goal, job.object_pose, policy).closer:
+        # no near-face push brings the cube closer (one beside the goal and a little past it: pushed further along,
+        # it goes further past): the side face's push to the goal, where it is sturdy and does
+        side = _side_push(settings, goal, job, scales, worlds, goal)
+        if side is not None and predict(settings, model.scene, goal, job.object_pose, side).closer:
+            return side
+    return policy
 
 
 def _cube_moved(result: PlanResult) -> tuple[tuple[np.ndarray, float], tuple[np.ndarray, float]]:
@@ -150,8 +160,17 @@ def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[f
     waypoint = dataclasses.replace(
         goal, target_position_m=(x - aside_m * normal[1], y + aside_m * normal[0]),
         target_yaw_rad=yaw + abs(aside_m) / (abs(aside_m) + along_m) * cube_turn_rad(yaw, goal.target_yaw_rad))
-    plan_settings = executor_plan_settings(settings, job.time_left_s, executor.plan_iterations, worlds, SIDE_ONLY)
-    request = _request(waypoint, job, 1.0, scales)
+    return _side_push(settings, goal, job, scales, worlds, waypoint)
+
+
+def _side_push(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[float, float], worlds: list | None,
+               target: ExecuteGoal) -> Policy | None:
+    """A push to `target` (the goal, or a waypoint towards it) on the side face it needs, planned with the side
+    face's starts alone, taken if sturdy; None where it needs none, the plate does not reach that face, or its plan
+    is not sturdy."""
+    plan_settings = executor_plan_settings(settings, job.time_left_s, settings.executor.plan_iterations, worlds,
+                                           SIDE_ONLY)
+    request = _request(target, job, 1.0, scales)
     try:
         start = side_start(plan_settings, request)
         if start is None or not start.reaches:

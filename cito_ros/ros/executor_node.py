@@ -43,7 +43,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header
 
-from cito_ros.execution.executor import Ending, ExecuteGoal, Executor, Phase
+from cito_ros.execution.executor import Ending, Executor, Phase
+from cito_ros.execution.goal import ExecuteGoal
 from cito_ros.execution.planning import compute
 from cito_ros.execution.world import JointReading, PoseReading
 from cito_ros.model.contact_models import CONTACT_MODELS
@@ -213,8 +214,9 @@ class ExecutorNode(Node):
         if not fresh:  # after the request's own checks: a bad goal is told what is wrong with it, whatever the robot
             return self._refuse(goal_handle, Result.STATUS_STALE_MEASUREMENTS,
                                 f"no joint states and cube poses newer than {limit:g} s: nothing to start from")
-        for reading, arrival in self._poses:
-            executor.on_pose(reading, arrival)
+        for reading, arrival in self._poses:  # the current ones: older poses may show a cube since moved or replaced
+            if now - arrival <= limit:
+                executor.on_pose(reading, arrival)
         executor.on_joints(self._joints, self._joints_arrival)
         self._executions += 1
         name = time.strftime("execute_%Y%m%d_%H%M%S", time.localtime(now)) + f"_{self._executions:04d}"

@@ -26,7 +26,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from cito_ros.execution.executor import ExecuteGoal
+from cito_ros.execution.goal import ExecuteGoal
 from cito_ros.execution.world import Mismatch
 from cito_ros.planner.task import tilt_of, yaw_of
 

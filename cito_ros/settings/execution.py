@@ -92,6 +92,9 @@ class ExecutorSettings:
         "a push towards a goal more than this off the near face's inward normal (outside its friction cone), with "
         "pushes left after it, is first made on the side face towards the goal's offset across that normal, to the "
         "waypoint that leaves the rest of the way along it, where that plan is sturdy (0: never)", minimum=0.0)
+    side_when_stuck: bool = setting(
+        "after a push, where no push on the near face would bring the cube closer (the executor would end there), a "
+        "push to the goal on the side face it needs is planned, and made where it is sturdy and brings it closer")
     waypoint_fraction: float = setting("a push whose plan to the goal is not sturdy (PlanResult.sturdy), with pushes "
                                        "left after it, is planned again to this fraction of the way there, and that "
                                        "plan taken if it is sturdy (0: never)", minimum=0.0)

@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 
 from cito_ros.execution.episode import run_closed_loop, run_open_loop
-from cito_ros.execution.executor import Ending, ExecuteGoal
+from cito_ros.execution.executor import Ending
+from cito_ros.execution.goal import ExecuteGoal
 from cito_ros.execution.world import Mismatch, SimulatedWorld
 from cito_ros.model.contact_models import contact_model
 from cito_ros.model.scene import Scene, start_configuration
