@@ -4,6 +4,7 @@ first; where no near-face push would bring the cube closer, on a side face to th
 (cito_ros.execution.planning.compute). Real MuJoCo, the real planner."""
 import dataclasses
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from cito_ros.execution.executor import Job
 from cito_ros.execution.goal import ExecuteGoal, predict
 from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import push_model
+from cito_ros.execution import planning
 from cito_ros.execution.planning import compute
 from cito_ros.model.scene import start_configuration
 from cito_ros.planner.results import tolerance_ratio
@@ -74,6 +76,26 @@ def test_a_push_not_sturdy_to_the_goal_goes_sturdy_to_a_waypoint_partway_while_p
     assert np.linalg.norm(position - goal) > settings.task.success_position_error_m
     waypoint_yaw = CUBE[1] + fraction * (GOAL.target_yaw_rad - CUBE[1])
     assert abs(yaw - waypoint_yaw) < settings.task.success_orientation_error_rad
+
+
+def test_a_pushs_plans_share_one_time_limit_each_given_what_the_ones_before_left(settings, monkeypatch):
+    settings = at_planners_horizon(settings)
+    plans = []  # (the solver's wall-clock limit, the plan's wall time)
+
+    def timed(request, plan_settings):
+        began = time.perf_counter()
+        result = planned(request, plan_settings)
+        plans.append((plan_settings.solver.time_limit_s, time.perf_counter() - began))
+        return result
+
+    planned = planning._plan
+    monkeypatch.setattr(planning, "_plan", timed)
+    first_push(settings, pushes_left=2)
+    assert len(plans) == 2, "the premise: the push to the goal is not sturdy, the waypoint's is planned after it"
+    (first_limit_s, first_s), (second_limit_s, _) = plans
+    assert first_limit_s == pytest.approx(settings.executor.plan_time_limit_s, abs=0.5)
+    # the limits are 20 s each on their own: three plans had taken a push 50 s (docs/results.md)
+    assert second_limit_s <= max(first_limit_s - first_s, 1.0)
 
 
 def test_the_executors_pushes_take_its_horizon_not_the_planners(settings):

@@ -60,27 +60,33 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     had been made, and the execution ended with no closer push where the waypoint's moved it closer). After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it; where that push would not bring the cube closer (the executor ends there), the side face's push to the goal
-    is planned (executor.side_when_stuck) and made where it is sturdy and does."""
+    is planned (executor.side_when_stuck) and made where it is sturdy and does. A push's plans share one
+    executor.plan_time_limit_s of wall clock, each given what the ones before it left (at least a second)."""
     if job.kind == "replan":  # in the model the running push was planned in: its knots, its cube
         return push_model(_knotted(settings, job.running.control_period_s), goal, job.running.object_scales).replan(
             job.now_s, job.state, job.running, settings.executor.replan_budget_s)
     model = push_model(settings, goal)
     executor = settings.executor
+    deadline = time.perf_counter() + min(job.time_left_s, executor.plan_time_limit_s)
+
+    def left() -> Job:  # with 20 s each, three plans took a push 50 s of the execution's 60 (docs/results.md)
+        return dataclasses.replace(job, time_left_s=deadline - time.perf_counter())
+
     scales, worlds = (1.0, 1.0), None
     if job.observed and executor.identify_friction_scales:
         cube = identify(model, job.observed, dataclasses.replace(settings.tracking, feed_forward=False),
                         executor.identify_friction_scales, executor.identified_spread, executor.identify_tolerance)
         scales, worlds = (cube.friction_scale, 1.0), [cube.worlds(executor.world_friction_scales),
                                                       executor.world_mass_scales]
-    side = _side_first(settings, goal, job, scales, worlds)
+    side = _side_first(settings, goal, left(), scales, worlds)
     if side is not None:
         return side
     try:
         sequence = job.pushes_left > 0 and executor.waypoint_fraction > 0
-        request, result = _plan_to(settings, goal, job, 1.0,
+        request, result = _plan_to(settings, goal, left(), 1.0,
                                    executor.direct_iterations if sequence else executor.plan_iterations, scales, worlds)
         if sequence and not result.sturdy:
-            shorter = _plan_to(settings, goal, job, executor.waypoint_fraction, executor.plan_iterations, scales,
+            shorter = _plan_to(settings, goal, left(), executor.waypoint_fraction, executor.plan_iterations, scales,
                                worlds)
             if shorter[1].sturdy and _moves(settings, shorter[1]) or \
                     _predicted(settings, goal, shorter[1]) < _predicted(settings, goal, result):
@@ -94,7 +100,7 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
             not predict(settings, model.scene, goal, job.object_pose, policy).closer:
         # no near-face push brings the cube closer (one beside the goal and a little past it: pushed further along,
         # it goes further past): the side face's push to the goal, where it is sturdy and does
-        side = _side_push(settings, goal, job, scales, worlds, goal)
+        side = _side_push(settings, goal, left(), scales, worlds, goal)
         if side is not None and predict(settings, model.scene, goal, job.object_pose, side).closer:
             return side
     return policy

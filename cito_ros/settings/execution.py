@@ -141,7 +141,8 @@ class ExecutorSettings:
                                "goes where the model has it in more worlds", positive=True)
     plan_iterations: int = setting("the planner's iterations for one push (solver.iteration_budget: the best plan "
                                    "by then is taken, the same however loaded the machine is)", minimum=1)
-    plan_time_limit_s: float = setting("and its wall clock at most, a safety net (s)", positive=True)
+    plan_time_limit_s: float = setting("and the wall clock of all of a push's plans together at most, a safety net (s)",
+                                       positive=True)
     time_limit_s: float = setting("an execution's wall-clock limit where the goal gives none (s)", positive=True)
 
     def replans(self, face: int) -> bool:
