@@ -240,10 +240,13 @@ class ExecutorNode(Node):
                 if job is not None:  # computed in the planner's process: the control here is never starved of it
                     outcome = self._planner.submit(compute, self.settings, executor.goal, job).result()
                     elapsed = time.time() - now
+                    # a plan runs to its end: the control steps may have ended the execution meanwhile (stale data)
+                    ended = executor.phase is Phase.DONE
                     work = executor.accept(job, outcome, elapsed)
                     if job.kind == "plan":
                         made = f"push {executor.pushes} planned in {elapsed:.1f} s" if work else \
-                            f"no push made after {elapsed:.1f} s of planning"
+                            f"the plan came back after {elapsed:.1f} s to an execution that had ended meanwhile: " \
+                            f"{executor.message}" if ended else f"no push made after {elapsed:.1f} s of planning"
                         self.get_logger().info(f"execution {self._executions}: {made}")
                     if work is not None:
                         self._publish_prediction(work.policy, bag)
