@@ -30,6 +30,15 @@ def without_timings(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in TIMINGS}
 
 
+def test_solves_one_at_a_time_plan_with_the_configured_threads_and_several_at_once_with_one_each():
+    settings = load_settings()
+    assert settings.gradient.threads > 1
+    assert sweep.settings_for(settings, 0) == settings and sweep.settings_for(settings, 1) == settings
+    for workers in (None, 2):
+        shared = sweep.settings_for(settings, workers)
+        assert shared.gradient.threads == 1 and not shared.stages.parallel
+
+
 def test_a_sweep_gives_the_same_records_on_ray_and_in_process():
     settings = load_settings().with_overrides({"solver.max_iter": 4})
     in_process = sweep.run_sweep(small_sweep(sweep.settings_for(settings, 0)), workers=0)

@@ -15,8 +15,9 @@
     cito-bench refusals [--n 10] [--json]         how soon a one-shot cito-plan refuses a goal, its start included
     cito-bench closed-loop [--n 30] [--seed S] [--distribution D] [--ros | --clock-s PLAN_S REPLAN_S] [--out DIR]
                                                   open and closed loop in mismatched worlds (in process, each
-                                                  compute on the world's clock as measured or as --clock-s fixes
-                                                  it; --ros: through the nodes)
+                                                  compute on the world's clock as measured, one episode at a
+                                                  time unless --workers says, or as --clock-s fixes it; --ros:
+                                                  through the nodes)
 
 The sweeps (paper, targets, speed-vs-error, hard, collisions) run every solve as a Ray task on an
 embedded local Ray (--workers W at once, default this machine's cores), on a cluster with
@@ -356,11 +357,14 @@ def main(argv: list[str] | None = None) -> int:
             bar.close()
         else:
             clock_s = None if args.clock_s is None else dict(zip(("plan", "replan"), args.clock_s, strict=True))
-            jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, args.workers),
-                                    clock_s=clock_s)
+            # on the measured clock one episode at a time, by default: the compute it measures is then one
+            # executor's on this machine, not half of it (two at once on two cores: replans 7.1 Hz against 9.8-10.0;
+            # docs/results.md: One episode at a time)
+            workers = args.workers if args.workers is not None or clock_s is not None else 1
+            jobs = closed_loop.jobs(goals, args.contact_model, sweep.settings_for(settings, workers), clock_s=clock_s)
             # a fixed clock's episodes apart from measured ones: a rerun takes the finished cases of its own directory
             clock = "" if clock_s is None else f"-clock{clock_s['plan']:g}-{clock_s['replan']:g}"
-            records = sweep.run_sweep(jobs, workers=args.workers, address=args.address,
+            records = sweep.run_sweep(jobs, workers=workers, address=args.address,
                                       out=args.out / f"{args.distribution}-seed{args.seed}{clock}", label="closed loop")
         summary = closed_loop.report(records)
         args.out.mkdir(parents=True, exist_ok=True)

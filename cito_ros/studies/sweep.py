@@ -5,9 +5,10 @@ returns one JSON-serialisable record. `run_sweep` returns the records in the job
 the order they finish in, so a report never depends on the number of workers:
 
 - Ray: `address` joins a running cluster ("auto" or host:port); without it an embedded local Ray
-  sized to this machine starts and stops with the sweep (no dashboard). Every task
-  plans with one linearization thread and its starts one after the other (`settings_for`; results
-  are the same bits as with more threads, tested), so the workers do not oversubscribe the cores.
+  sized to this machine starts and stops with the sweep (no dashboard). With more than one task at
+  a time, every task plans with one linearization thread and its starts one after the other
+  (`settings_for`; results are the same bits as with more threads, tested), so the workers do not
+  oversubscribe the cores; one at a time (workers=1), a task plans as configured (threaded).
 - In process (workers=0): the jobs one after the other, with the settings as configured (threaded).
 - Failures: a job that raises, or whose worker dies, becomes a record {"key", "failed": true,
   "error"}; the sweep goes on and its report says so.
@@ -32,8 +33,9 @@ TASK_OVERRIDES = {"gradient.threads": 1, "stages.parallel": False}
 
 
 def settings_for(settings: Settings, workers: int | None) -> Settings:
-    """The settings a sweep's solves plan with: one thread each on Ray, as configured in process."""
-    return settings if workers == 0 else settings.with_overrides(TASK_OVERRIDES)
+    """The settings a sweep's solves plan with: as configured one at a time (in process, workers=0, or on Ray,
+    workers=1), one thread each where several run at once (workers None: as many as cores)."""
+    return settings if workers in (0, 1) else settings.with_overrides(TASK_OVERRIDES)
 
 
 def split_failures(records: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
