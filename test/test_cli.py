@@ -209,12 +209,12 @@ def test_bench_collisions(tmp_path):
 
 
 def test_the_main_job_cancelled_returns_the_best_plan_so_far(tmp_path):
-    # a push 62 degrees off the cube's pushed face, 24 cm away, that no push on that face reaches: the search runs
-    # every start, for tens of seconds
-    result = run("cito-demo", "--target", "1.10", "-0.21", "-0.49", "--cancel-after", "3", "--bag-directory",
+    # a push 62 degrees off the cube's pushed face, 24 cm away: two pushes, the first across on the side face, whose
+    # plan alone takes seconds; cancelled in it, the answer is that push judged against the goal
+    result = run("cito-demo", "--target", "1.10", "-0.21", "-0.49", "--cancel-after", "1", "--bag-directory",
                  str(tmp_path), timeout=300)
     assert result.returncode == 0, result.stderr
-    assert "cancelling the goal after 3 s" in result.stderr
+    assert "cancelling the goal after 1 s" in result.stderr
     assert "status 5 (no success) the solve was cancelled" in result.stdout
     bags = [p for p in tmp_path.iterdir()]
     assert len(bags) == 1 and f"bag                {bags[0]}" in result.stdout

@@ -22,6 +22,7 @@ from cito_ros.cli.progress import advance, progress_bar  # noqa: E402
 from cito_ros.model.contact_models import CONTACT_MODELS  # noqa: E402
 from cito_ros.planner.plan import plan_push  # noqa: E402
 from cito_ros.planner.results import IterationLog, PlanResult, zone, zone_note  # noqa: E402
+from cito_ros.planner.sequence import sequence_note  # noqa: E402
 from cito_ros.planner.task import aim_note, equivalent_yaw_note  # noqa: E402
 from cito_ros.settings import load_settings  # noqa: E402
 
@@ -51,6 +52,9 @@ def print_summary(result: PlanResult, requested_yaw_rad: float) -> None:
     taken = equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad)
     if taken:
         print(f"goal yaw           {taken}")
+    pushes = sequence_note(result)
+    if pushes:
+        print(f"pushes             {pushes}")
     aimed = aim_note(result.target_position_m, result.aim_position_m)
     if aimed:
         print(f"aim                {aimed}")

@@ -20,7 +20,7 @@ from cito_ros.planner.builder import PushRequest, build_problem
 from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status, tolerance_ratio, within_limits
-from cito_ros.planner.side_faces import NEAR, near_normal_rad
+from cito_ros.planner.side_faces import NEAR, across_first
 from cito_ros.planner.task import cube_turn_rad, nearest_equivalent_yaw, yaw_of
 from cito_ros.settings import Settings
 
@@ -42,6 +42,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
         "stages.scripted.follow_face": True,
         # side starts spent the pushes' iteration budget: closed loop 58 of 72 with them, 64 without (docs/results.md)
         "stages.scripted.side_faces.enabled": False,
+        "stages.sequence.across_first_rad": 0.0,  # its own pushes are its sequence, each from the measured state
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],
         "stages.scripted.variants.horizon_scale": [1.0, *variants.horizon_scale],
@@ -156,16 +157,12 @@ def _side_first(settings: Settings, goal: ExecuteGoal, job: Job, scales: tuple[f
     are). None where it does not apply, the plate does not reach that side face, or its plan is not sturdy."""
     executor = settings.executor
     (x, y), yaw = job.object_pose
-    near_rad = near_normal_rad((x, y), yaw)
-    normal = np.array([math.cos(near_rad), math.sin(near_rad)])
-    push = np.asarray(goal.target_position_m, dtype=float)[:2] - (x, y)
-    aside_m, along_m = float(push @ (-normal[1], normal[0])), float(push @ normal)
+    waypoint_xy, waypoint_yaw, across_m, along_m = across_first((x, y), yaw, goal.target_position_m,
+                                                                goal.target_yaw_rad)
     if executor.side_first_rad <= 0.0 or job.pushes_left <= 0 or along_m <= 0.0 or \
-            abs(math.atan2(aside_m, along_m)) <= executor.side_first_rad:
+            abs(math.atan2(across_m, along_m)) <= executor.side_first_rad:
         return None
-    waypoint = dataclasses.replace(
-        goal, target_position_m=(x - aside_m * normal[1], y + aside_m * normal[0]),
-        target_yaw_rad=yaw + abs(aside_m) / (abs(aside_m) + along_m) * cube_turn_rad(yaw, goal.target_yaw_rad))
+    waypoint = dataclasses.replace(goal, target_position_m=waypoint_xy, target_yaw_rad=waypoint_yaw)
     return _side_push(settings, goal, job, scales, worlds, waypoint)
 
 

@@ -17,10 +17,11 @@ from typing import Callable
 
 import numpy as np
 
-from cito_ros.planner import push_limits, tracking
+from cito_ros.planner import push_limits, sequence, tracking
 from cito_ros.planner.builder import PlanningProblem, PushRequest, build_problem
 from cito_ros.planner.candidates import Motions
 from cito_ros.planner.physical import solve_physical
+from cito_ros.model.simulator import Trajectory
 from cito_ros.planner.results import IterationLog, Metrics, PlanResult, Status, succeeds
 from cito_ros.planner.stages import Outcome, solve_paper
 from cito_ros.settings import Settings, load_settings
@@ -66,11 +67,20 @@ def plan_push(
     settings = load_settings() if settings is None else settings
     request = PushRequest(contact_model, beta, start_q, target_position_m, target_yaw_rad, scene, object_pose,
                           object_scales)
+    return _plan(request, settings, iteration_callback, cancel)
+
+
+def _plan(request: PushRequest, settings: Settings, iteration_callback: Callable[[IterationLog], None] | None,
+          cancel: threading.Event | None) -> PlanResult:
     posed = build_problem(settings, request)
     if settings.pipeline == "paper":
         outcome = solve_paper(posed, settings, iteration_callback=iteration_callback, cancel=cancel)
-    else:
-        outcome = solve_physical(settings, request, iteration_callback=iteration_callback, cancel=cancel)
+        return evaluate_plan(outcome, posed, settings)
+    waypoint = sequence.first_target(posed, settings)
+    if waypoint is not None:
+        return sequence.plan_sequence(settings, request, posed, waypoint, _plan, _judge_sequence(posed, settings),
+                                      iteration_callback, cancel)
+    outcome = solve_physical(settings, request, iteration_callback=iteration_callback, cancel=cancel)
     return evaluate_plan(outcome, posed, settings)
 
 
@@ -90,31 +100,14 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         motions = Motions(trajectory, tracking.held_motion(simulator, trajectory.final_state, settings.tracking),
                           tracked, tracking.held_motion(simulator, tracked.final_state, settings.tracking))
     trajectory, rest, tracked, tracked_rest = motions.trajectory, motions.rest, motions.tracked, motions.tracked_rest
-    position_error, orientation_error = tracking.errors_at_rest(rest, task)
     planned_position_error, planned_orientation_error = task.final_errors(planned)  # the paper's, at T
-    tracked_position_error, tracked_orientation_error = tracking.errors_at_rest(tracked_rest, task)
-    motion = trajectory.followed_by(rest)  # the limits hold over the horizon and the hold
-    speed_ratio = float(np.max(np.abs(motion.qdot) / discovery.scene.velocity_limit))
-    range_excess = discovery.scene.joint_range_excess(motion.q)
-    status = outcome.status
-    if not (trajectory.finite and planned.finite) or trajectory.warnings or planned.warnings \
-            or not math.isfinite(position_error):  # NaN: MuJoCo warned while the arm held its last position
-        status = Status.NUMERICAL_ERROR
-    usable = status is not Status.NUMERICAL_ERROR and math.isfinite(position_error)
+    figures, broken = _executed(discovery.scene, discovery.initial_state, trajectory, rest, tracked_rest, task)
+    status = Status.NUMERICAL_ERROR if broken or not planned.finite or planned.warnings else outcome.status
     metrics = Metrics(
-        position_error_m=position_error,
-        orientation_error_rad=orientation_error,
-        tracked_position_error_m=tracked_position_error,
-        tracked_orientation_error_rad=tracked_orientation_error,
+        **figures,
         planned_position_error_m=planned_position_error,
         planned_orientation_error_rad=planned_orientation_error,
         physical_inaccuracy_Ns=float(simulator.timestep_s * np.sum(planned.gamma_N)),
-        max_joint_speed_ratio=speed_ratio,
-        joint_range_excess_rad=range_excess,
-        final_object_speed_m_s=float(np.linalg.norm(simulator.scene.object_qvel(trajectory.final_state)[:3])),
-        rest_object_speed_m_s=math.nan if rest is None else simulator.scene.object_speed_m_s(rest.final_state),
-        steady_reach_margin_m=push_limits.steady_reach_margin_m(discovery.scene, discovery.initial_state,
-                                                                task.target_position_m),
         solve_time_s=outcome.solve_time_s,
         setup_time_s=outcome.setup_s,
         rollout_time_s=sum(record.rollout_s for record in outcome.stages),
@@ -124,7 +117,8 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         iterations=sum(record.iterations for record in outcome.stages),
         status=status,
         success=False,  # the verdict on these figures, below
-        planned_success=bool(usable and planned_position_error < settings.task.planned_success_position_error_m),
+        planned_success=bool(status is not Status.NUMERICAL_ERROR and math.isfinite(figures["position_error_m"])
+                             and planned_position_error < settings.task.planned_success_position_error_m),
     )
     metrics = dataclasses.replace(metrics, success=succeeds(metrics, settings.task))
     return PlanResult(
@@ -152,3 +146,63 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         note=outcome.note,
         aim_position_m=None if task.aim_position_m is None else task.aim_position_m.copy(),
     )
+
+
+def _executed(scene, initial_state: np.ndarray, trajectory: Trajectory, rest: Trajectory | None,
+              tracked_rest: Trajectory | None, task) -> tuple[dict, bool]:
+    """The Metrics of a motion executed from initial_state (trajectory, then the arm held: rest) and of its tracked
+    twin's rest, and whether it is numerically broken (not finite, MuJoCo warned, or no rest: NaN errors)."""
+    position_error, orientation_error = tracking.errors_at_rest(rest, task)
+    tracked_position_error, tracked_orientation_error = tracking.errors_at_rest(tracked_rest, task)
+    motion = trajectory.followed_by(rest)  # the limits hold over the horizon and the hold
+    figures = dict(
+        position_error_m=position_error,
+        orientation_error_rad=orientation_error,
+        tracked_position_error_m=tracked_position_error,
+        tracked_orientation_error_rad=tracked_orientation_error,
+        max_joint_speed_ratio=float(np.max(np.abs(motion.qdot) / scene.velocity_limit)),
+        joint_range_excess_rad=scene.joint_range_excess(motion.q),
+        final_object_speed_m_s=float(np.linalg.norm(scene.object_qvel(trajectory.final_state)[:3])),
+        rest_object_speed_m_s=math.nan if rest is None else scene.object_speed_m_s(rest.final_state),
+        steady_reach_margin_m=push_limits.steady_reach_margin_m(scene, initial_state, task.target_position_m))
+    # NaN: MuJoCo warned while the arm held its last position
+    return figures, not trajectory.finite or bool(trajectory.warnings) or not math.isfinite(position_error)
+
+
+def _judge_sequence(posed: PlanningProblem, settings: Settings) -> sequence.Judge:
+    """The result of a sequence (cito_ros.planner.sequence): its motion from the request's start judged as one plan
+    against the goal (executed, held, at rest; tracked by the PD controller from the same start), its figures of
+    planning summed over its pushes, the contact model's plan and knots the last push's, the pushes' results in
+    `legs`, the status the last push's."""
+
+    def judge(legs: tuple[PlanResult, ...], motion: Trajectory, rest: Trajectory | None,
+              solve_time_s: float) -> PlanResult:
+        last = legs[-1]
+        gains, steps = settings.tracking, len(motion.torque_Nm)
+        tracked = tracking.pd_motion(posed.simulator, posed.initial_state, motion.q[:steps], motion.qdot[:steps], gains,
+                                     motion.control_torque_Nm if gains.feed_forward else None)
+        tracked_rest = tracking.held_motion(posed.simulator, tracked.final_state, gains)
+        figures, broken = _executed(posed.scene, posed.initial_state, motion, rest, tracked_rest, posed.task)
+        summed = {name: sum(getattr(leg.metrics, name) for leg in legs)
+                  for name in ("physical_inaccuracy_Ns", "setup_time_s", "rollout_time_s", "linearization_time_s",
+                               "solver_time_s", "evaluation_time_s", "iterations")}
+        status = Status.NUMERICAL_ERROR if broken else last.status
+        planned_position_error, planned_orientation_error = posed.task.final_errors(last.planned)
+        metrics = dataclasses.replace(
+            last.metrics, **figures, **summed, solve_time_s=solve_time_s, status=status,
+            planned_position_error_m=planned_position_error, planned_orientation_error_rad=planned_orientation_error,
+            planned_success=bool(status is not Status.NUMERICAL_ERROR and
+                                 planned_position_error < settings.task.planned_success_position_error_m))
+        metrics = dataclasses.replace(metrics, success=succeeds(metrics, settings.task))
+        stages = tuple(dataclasses.replace(record, name=f"push {i}: {record.name}")
+                       for i, leg in enumerate(legs, 1) for record in leg.stages)
+        return dataclasses.replace(
+            last, beta=posed.beta, initial_distance_m=posed.initial_distance_m,
+            target_position_m=posed.task.target_position_m.copy(), target_yaw_rad=posed.task.target_yaw_rad,
+            aim_position_m=None if posed.task.aim_position_m is None else posed.task.aim_position_m.copy(),
+            trajectory=motion, tracked=tracked,
+            rest=rest, tracked_rest=tracked_rest, metrics=metrics, stages=stages, scene=posed.scene,
+            iteration_log=tuple(entry for leg in legs for entry in leg.iteration_log), sturdy=False, legs=legs,
+            note="; ".join(leg.note for leg in legs if leg.note))
+
+    return judge

@@ -247,6 +247,9 @@ class PlanResult:
                                      # tracking.world_*_scales, as the search judged it (False: other worlds not asked)
     note: str = ""                   # what the search could not try, which an answer that misses says
     aim_position_m: np.ndarray | None = None  # where the pushes aimed past the goal (PushTask.aim_position_m)
+    legs: tuple["PlanResult", ...] = ()  # a sequence's pushes (cito_ros.planner.sequence), each planned from where
+                                     # the one before leaves the object; its knots and `planned` are the last's
+                                     # (empty: one push, this one)
 
     @property
     def executed_motion(self) -> Trajectory:
@@ -260,7 +263,9 @@ class PlanResult:
 
     @property
     def knot_q(self) -> np.ndarray:
-        """(N+1, 7) joint positions at the knot boundaries."""
+        """(N+1, 7) joint positions at the knot boundaries (a sequence's: its last push's, as planned)."""
+        if self.legs:
+            return self.legs[-1].knot_q
         steps = (len(self.trajectory.time_s) - 1) // len(self.knot_torques_Nm)
         return self.trajectory.q[::steps]
 
@@ -285,6 +290,7 @@ class PlanResult:
             "derivatives": self.derivative_info,
             "stages": [record.as_dict() for record in self.stages],
             "note": self.note,
+            "pushes": max(len(self.legs), 1),
         }
 
     def finite(self) -> bool:

@@ -22,7 +22,7 @@ from mujoco import minimize
 from cito_ros.model.scene import pushed_face
 from cito_ros.model.simulator import FULL_PHYSICS
 from cito_ros.planner.scripted import _at_start, _cross, _minimum_jerk
-from cito_ros.planner.task import turn_rad, yaw_of
+from cito_ros.planner.task import cube_turn_rad, turn_rad, yaw_of
 from cito_ros.planner.tracking import JointPath
 from cito_ros.settings import ScriptedSettings, SideFaceSettings
 
@@ -49,6 +49,21 @@ def face_for(object_xy, object_yaw_rad: float, target_xy) -> int:
     if np.linalg.norm(push) < 1e-9:
         return NEAR
     return face_towards(near_normal_rad(object_xy, object_yaw_rad), math.atan2(push[1], push[0]))
+
+
+def across_first(object_xy, object_yaw_rad: float, target_xy, target_yaw_rad: float
+                 ) -> tuple[tuple[float, float], float, float, float]:
+    """A push from a cube at object_xy with object_yaw_rad towards target_xy split into its parts across and along
+    the near face's inward normal: the waypoint the part across leads to, with the turn to target_yaw_rad (the cube's
+    turn to it, cube_turn_rad) shared in proportion to the two parts' lengths, and the parts' lengths (m; across
+    positive to the normal's left)."""
+    (x, y), normal_rad = object_xy, near_normal_rad(object_xy, object_yaw_rad)
+    normal = np.array([math.cos(normal_rad), math.sin(normal_rad)])
+    push = np.asarray(target_xy, dtype=float)[:2] - (x, y)
+    across_m, along_m = float(push @ (-normal[1], normal[0])), float(push @ normal)
+    share = abs(across_m) / max(abs(across_m) + abs(along_m), 1e-12)
+    return ((x - across_m * normal[1], y + across_m * normal[0]),
+            object_yaw_rad + share * cube_turn_rad(object_yaw_rad, target_yaw_rad), across_m, along_m)
 
 
 def face_needed(object_xy, object_yaw_rad: float, target_xy, settings) -> int:

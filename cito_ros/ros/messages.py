@@ -28,6 +28,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from cito_ros.model.contact_models import CONTACT_MODELS
 from cito_ros.model.scene import ARM_JOINTS, TABLE_TOP_Z_M
 from cito_ros.planner.results import IterationLog, Metrics, PlanResult, StageRecord, Status, shortfalls, zone_note
+from cito_ros.planner.sequence import sequence_note
 from cito_ros.planner.task import aim_note, equivalent_yaw_note, yaw_of
 from cito_ros.settings import SceneConfig, Settings
 
@@ -131,7 +132,7 @@ def response_status(result: PlanResult, settings: Settings, requested_yaw_rad: f
     ends = (f"executed without the virtual force, the object ends {100 * m.position_error_m:.2f} cm and "
             f"{m.orientation_error_rad:.3f} rad from the goal (solver {status.value})")
     notes = (zone_note(m.steady_reach_margin_m), equivalent_yaw_note(requested_yaw_rad, result.target_yaw_rad),
-             aim_note(result.target_position_m, result.aim_position_m))
+             aim_note(result.target_position_m, result.aim_position_m), sequence_note(result))
     if m.success:
         return Response.STATUS_SUCCEEDED, ends + "".join(f"; {n}" for n in notes if n)
     return Response.STATUS_TASK_NOT_ACHIEVED, (

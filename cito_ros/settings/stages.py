@@ -123,6 +123,25 @@ class SideFaceSettings:
 
 
 @dataclass(frozen=True)
+class SequenceSettings:
+    """Two pushes for a goal well off the near face's normal (cito_ros.planner.sequence)."""
+
+    across_first_rad: float = setting("a goal ahead of the near face more than this off its inward normal, and "
+                                      "further than the position tolerance both across and along it, is reached by "
+                                      "two pushes: across it on the side face, then along it (0: one push)",
+                                      minimum=0.0)
+    first_time_fraction: float = setting("the first push's share of solver.time_limit_s; the second has what is "
+                                         "left", positive=True)
+    transit_speed_fraction: float = setting("between the pushes the arm goes back the way the first came, no joint "
+                                            "faster than this fraction of its speed limit", positive=True)
+
+    def check(self, path: str) -> None:
+        if self.first_time_fraction >= 1.0 or self.transit_speed_fraction > 1.0:
+            raise ValueError(f"{path}: first_time_fraction must be in (0, 1) and transit_speed_fraction in (0, 1], "
+                             f"got {self.first_time_fraction} and {self.transit_speed_fraction}")
+
+
+@dataclass(frozen=True)
 class ScriptedSettings:
     """The scripted push, the physical pipeline's first start (cito_ros.planner.scripted), and its variants."""
 
@@ -179,6 +198,7 @@ class StagesSettings:
     scripted: ScriptedSettings = setting("the scripted push, the first start")
     discovery: DiscoverySettings = setting("the contact model's stage")
     physical: PhysicalStages = setting("the stages without the virtual force")
+    sequence: SequenceSettings = setting("two pushes for a goal well off the near face's normal")
     touch_force_N: float = setting("a virtual force above this marks the discovery's touch-down", positive=True)
     goal_margin: float = setting("a start's stages end once its executed plan is within this fraction of the success "
                                  "tolerances (at most 1)", positive=True)
