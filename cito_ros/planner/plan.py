@@ -17,11 +17,11 @@ from typing import Callable
 
 import numpy as np
 
+from cito_ros.model.simulator import Trajectory
 from cito_ros.planner import push_limits, sequence, tracking
 from cito_ros.planner.builder import PlanningProblem, PushRequest, build_problem
 from cito_ros.planner.candidates import Motions
 from cito_ros.planner.physical import solve_physical
-from cito_ros.model.simulator import Trajectory
 from cito_ros.planner.results import IterationLog, Metrics, PlanResult, Status, succeeds
 from cito_ros.planner.stages import Outcome, solve_paper
 from cito_ros.settings import Settings, load_settings
