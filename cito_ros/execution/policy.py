@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from cito_ros.model.scene import Scene
-from cito_ros.model.speed_guard import within_speed_limits
+from cito_ros.model.speed_guard import path_slowdown, within_speed_limits
 
 SPEED_GUARD = 0.95  # of each joint's velocity limit: the executor keeps every joint within it
 
@@ -133,9 +133,8 @@ class Retreat:
         """Along path_q (joint poses timestep_s apart, the way a push came, reversed), slowed where a joint would
         pass settings.retreat_speed_fraction of its limit, and at least settings.retreat_min_s long: the straight
         way back from a side push crosses the cube the arm reached around."""
-        speed = np.max(np.abs(np.diff(path_q, axis=0)) / (timestep_s * settings.retreat_speed_fraction *
-                                                            velocity_limit), initial=0.0)
-        duration = max(settings.retreat_min_s, (len(path_q) - 1) * timestep_s * max(float(speed), 1.0))
+        slowdown = path_slowdown(path_q, timestep_s, settings.retreat_speed_fraction, velocity_limit)
+        duration = max(settings.retreat_min_s, (len(path_q) - 1) * timestep_s * slowdown)
         return cls(start_s, start_s + duration, path_q[0].copy(), path_q[-1].copy(), path_q.copy())
 
     def at(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -2,7 +2,8 @@
 
 One law for the executor's commands (cito_ros.execution.executor) and for the checks of its plans (the tracking
 controller with tracking.speed_guard, natively in cito_track, of which this is the oracle: MuJoCo's own operations in
-cito_track's order, so that the two agree bit for bit).
+cito_track's order, so that the two agree bit for bit); and how much slower a joint path must run to stay within a
+fraction of the limits (`path_slowdown`: the executor's retreats, the planner's transits between pushes).
 """
 from __future__ import annotations
 
@@ -47,3 +48,10 @@ def within_speed_limits(scene: Scene, data: mujoco.MjData, u: np.ndarray, qdot: 
     up, down = step_Nm > 0, step_Nm < 0
     room = np.concatenate([(high_Nm - rest_Nm)[up] / step_Nm[up], (low_Nm - rest_Nm)[down] / step_Nm[down], [1.0]])
     return np.clip(rest_Nm + float(np.clip(np.min(room), 0.0, 1.0)) * step_Nm, low_Nm, high_Nm)
+
+
+def path_slowdown(path_q: np.ndarray, timestep_s: float, fraction: float, speed_limit: np.ndarray) -> float:
+    """How many times slower than one pose per timestep_s a joint path (poses in rows) must run for no joint to pass
+    `fraction` of its speed_limit between its poses: at least 1 (a path already slow enough keeps its pace)."""
+    return max(float(np.max(np.abs(np.diff(path_q, axis=0)) / (timestep_s * fraction * speed_limit), initial=0.0)),
+               1.0)

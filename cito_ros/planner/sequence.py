@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from cito_ros.model.simulator import Trajectory
+from cito_ros.model.speed_guard import path_slowdown
 from cito_ros.planner import tracking
 from cito_ros.planner.builder import PlanningProblem, PushRequest, build_problem
 from cito_ros.planner.results import IterationLog, PlanResult, Status
@@ -124,9 +125,8 @@ def transit(simulator, state: np.ndarray, path_q: np.ndarray, speed_fraction: fl
     a joint would pass speed_fraction of its limit: back the way a push came, the plate leaving the object along
     the way it arrived (straight back from a side push, the arm crosses the object it reached around)."""
     timestep_s = simulator.timestep_s
-    speed = np.max(np.abs(np.diff(path_q, axis=0)) / (timestep_s * speed_fraction * simulator.scene.velocity_limit),
-                   initial=0.0)
-    steps = max(int(math.ceil((len(path_q) - 1) * max(float(speed), 1.0))), 1)
+    slowdown = path_slowdown(path_q, timestep_s, speed_fraction, simulator.scene.velocity_limit)
+    steps = max(int(math.ceil((len(path_q) - 1) * slowdown)), 1)
     where = np.linspace(0.0, len(path_q) - 1, steps + 1)
     q_ref = np.stack([np.interp(where, np.arange(len(path_q)), path_q[:, j]) for j in range(path_q.shape[1])], axis=1)
     qdot_ref = np.gradient(q_ref, timestep_s, axis=0)
