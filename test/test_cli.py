@@ -192,6 +192,19 @@ def test_bench_refusals_times_a_one_shot_refusal_of_each_kind_and_its_reason():
     assert "unknown scene 'no_such_scene'" in reasons["unknown scene"]
     assert all(len(row["seconds"]) == 1 and row["seconds"][0] > 0 for row in report["requests"])
 
+
+def test_bench_refusals_starts_cito_plan_with_the_callers_environment_not_the_gl_backend_cito_bench_sets():
+    from cito_ros.cli.refusals import refusal_benchmark
+
+    caller = {name: value for name, value in os.environ.items() if name != "MUJOCO_GL"}
+    seen = subprocess.run([sys.executable, "-c", "import os, cito_ros.cli.bench as b; "
+                           "print('MUJOCO_GL' in b.CALLER_ENVIRONMENT, os.environ['MUJOCO_GL'])"],
+                          env=caller, capture_output=True, text=True, check=True).stdout.split()
+    assert seen == ["False", "osmesa"]  # cito-bench renders with OSMesa; the one-shot processes it times do not
+    with pytest.raises(ValueError, match="was not refused"):  # the processes run with the environment given
+        refusal_benchmark(1, environment={**caller, "MUJOCO_GL": "no_such_backend"})
+
+
 def test_bench_figures(tmp_path):
     result = run("cito-bench", "figures", "--out", str(tmp_path), timeout=900)
     assert result.returncode == 0, result.stderr

@@ -25,17 +25,19 @@ REQUESTS = (("pull back", ["--target", "0.80", "0.0", "0.0"]),
             ("unknown scene", ["--target", "1.10", "0.0", "0.0", "--scene", "no_such_scene"]))
 
 
-def refusal_benchmark(n: int, progress: Callable[[int], None] | None = None) -> dict:
+def refusal_benchmark(n: int, progress: Callable[[int], None] | None = None,
+                      environment: dict[str, str] | None = None) -> dict:
     """Each of REQUESTS `n` times through `cito-plan --json` (the console script beside this interpreter) in a
-    fresh process: its wall times (s), median and 90th percentile, and its answer; ValueError if one is not
-    refused (exit 2, status invalid_request), which would make its time no refusal's."""
+    fresh process with `environment` (default: this process's): its wall times (s), median and 90th percentile,
+    and its answer; ValueError if one is not refused (exit 2, status invalid_request), which would make its time
+    no refusal's."""
     command = [str(Path(sys.executable).with_name("cito-plan")), "--contact-model", "vscm", "--beta", "5", "--json"]
     rows, done = [], 0
     for name, arguments in REQUESTS:
         seconds, message = [], ""
         for _ in range(n):
             began = time.perf_counter()
-            answer = subprocess.run(command + arguments, capture_output=True, text=True, check=False)
+            answer = subprocess.run(command + arguments, capture_output=True, text=True, check=False, env=environment)
             seconds.append(time.perf_counter() - began)
             try:
                 printed = json.loads(answer.stdout)
