@@ -9,6 +9,7 @@ add cross-field checks in a `check(path)` method. `unparse` gives the tree back.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -54,10 +55,17 @@ def optional_type(annotation) -> tuple[bool, Any]:
     return False, annotation
 
 
+@functools.cache
+def _type_hints(cls) -> dict[str, Any]:
+    """typing.get_type_hints(cls), once per class: evaluating them was a quarter of a settings parse, and the
+    planner derives settings (with_overrides) many times a solve."""
+    return typing.get_type_hints(cls)
+
+
 def parse(cls, raw: Any, path: str):
     if not isinstance(raw, Mapping):
         raise ValueError(f"{path or 'the parameters'} must be a section (a mapping), got {raw!r}")
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     names = [f.name for f in fields(cls) if not f.metadata.get("internal")]
     unknown = sorted(set(raw) - set(names))
     if unknown:
