@@ -42,6 +42,7 @@ def executor_plan_settings(settings: Settings, time_left_s: float, iterations: i
         "stages.scripted.follow_face": True,
         # side starts spent the pushes' iteration budget: closed loop 58 of 72 with them, 64 without (docs/results.md)
         "stages.scripted.side_faces.enabled": False,
+        "stages.scripted.side_faces.gradient_stride": 1,  # its side pushes as measured closed loop (docs/results.md)
         "stages.sequence.across_first_rad": 0.0,  # its own pushes are its sequence, each from the measured state
         "stages.scripted.variants.contact_height_m": [script.contact_height_m, *variants.contact_height_m],
         "stages.scripted.variants.push_end_fraction": [script.push_end_fraction, *variants.push_end_fraction],

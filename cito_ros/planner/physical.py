@@ -63,7 +63,7 @@ def solve_physical(settings: Settings, request: PushRequest, *,
     if side is not None and side.reaches:  # first the face the goal needs; the near face's starts follow
         faces = stages.scripted.side_faces
         overrides = {"horizon_s": settings.round_horizon_s(faces.horizon_scale),
-                     "control_period_s": faces.control_period_s}
+                     "control_period_s": faces.control_period_s, "gradient.stride": faces.gradient_stride}
         jobs = [(overrides, dataclasses.replace(side, offset_scale=scale), f"side face{f' {i + 1}' if i else ''}: ")
                 for i, scale in enumerate(faces.offset_scales)]
     if stages.scripted.enabled:

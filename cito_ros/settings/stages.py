@@ -84,6 +84,9 @@ class SideFaceSettings:
                                    "takes most of horizon_s within the joint speed limits", positive=True)
     control_period_s: float = setting("the side push's knot period (s): the transit's torques, replayed open loop at "
                                       "horizon_s's period, swing the arm off its path", positive=True)
+    gradient_stride: int = setting("the side push's solves linearize every this many simulation steps, and every "
+                                   "step where the plate's contact begins or ends (gradient.stride for them)",
+                                   minimum=1)
     faces: tuple[int, ...] = setting("the side faces planned, in quarter turns counter-clockwise from the near face "
                                      "(1, 3); a goal needing another is refused")
     offset_scales: tuple[float, ...] = setting("one scripted start per entry: the contact's offset along the face "
