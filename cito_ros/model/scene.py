@@ -105,6 +105,8 @@ class Scene:
         self.object_site_id = m.site(OBJECT_CANDIDATE).id
         self.object_geom_id = m.geom(OBJECT_GEOM).id
         self.object_body_id = m.body(OBJECT_BODY).id
+        self.arm_geom_ids = np.flatnonzero(~np.isin(m.geom_bodyid, (0, self.object_body_id)))  # not world's, object's
+        self.arm_capsule_ids = self.arm_geom_ids[m.geom_type[self.arm_geom_ids] == mujoco.mjtGeom.mjGEOM_CAPSULE]
         self.object_half_size = m.geom_size[self.object_geom_id].copy()
         self.plate_radius_m, _, self.plate_half_thickness_m = map(float, m.geom_size[m.geom(PLATE_GEOM).id])  # normal: +z
         # The object candidate in the object box frame (constant: both sit on the object body).
@@ -321,9 +323,7 @@ class Scene:
         """The smallest signed distance (m) from an arm geom to the object in a forward-computed mjData, and that
         geom's name; (within_m, "") when none is nearer."""
         nearest, name = within_m, ""
-        for geom in range(self.model.ngeom):
-            if self.model.geom_bodyid[geom] in (0, self.object_body_id):
-                continue
+        for geom in map(int, self.arm_geom_ids):
             distance = mujoco.mj_geomDistance(self.model, data, geom, self.object_geom_id, within_m, None)
             if distance < nearest:
                 nearest, name = distance, self.model.geom(geom).name

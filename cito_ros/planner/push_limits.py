@@ -241,7 +241,7 @@ def pull_reach_m(scene: Scene) -> float:
         low, high = _joint_bounds(scene, MARGIN_RAD)
         site, qadr, oadr = scene.robot_site_id, scene.arm_qpos_adr, scene.object_qpos_adr
         plate, target = model.geom(PLATE_GEOM).id, scene.object_geom_id
-        arm = [g for g in range(model.ngeom) if model.geom_bodyid[g] not in (0, scene.object_body_id) and g != plate]
+        arm = [int(g) for g in scene.arm_geom_ids if g != plate]
         half = float(scene.object_half_size[0])
         axes = np.diag([scene.plate_radius_m, scene.plate_radius_m, scene.plate_half_thickness_m])
         towards_arm = np.array([-1.0, 0.0, 0.0])

@@ -13,7 +13,6 @@ near face's scripts (cito_ros.planner.scripted).
 """
 from __future__ import annotations
 
-import functools
 import math
 
 import mujoco
@@ -107,22 +106,13 @@ class SideGeometry:
         self.via = centre - (half + side.via_front_m) * away - (half + side.via_aside_m) * inward + lift
 
 
-@functools.lru_cache(maxsize=8)
-def _arm_capsules(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """The arm's capsule geoms and the table top's corners and height: asked at every inverse-kinematics step of a
-    side push's path, where finding them again was a third of the path's time."""
-    model = scene.model
-    geoms = np.flatnonzero((model.geom_type == mujoco.mjtGeom.mjGEOM_CAPSULE)
-                           & ~np.isin(model.geom_bodyid, (0, scene.object_body_id)))
-    return (geoms, *scene.table_top())
-
-
 def _low_points(scene, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The lowest point (world) of each of the arm's capsules, with its body and its height above the table top
     (inf where it is not over the table), in a kinematics-computed mjData: what of the arm comes nearest the table
     as the plate reaches low and tilted beside the object. Arrays over the capsules: bodies, (n, 3), (n,)."""
     model = scene.model
-    geoms, low, high, table_z = _arm_capsules(scene)
+    low, high, table_z = scene.table_top()
+    geoms = scene.arm_capsule_ids
     axes = data.geom_xmat[geoms, 2::3] * model.geom_size[geoms, 1:2]  # the capsules' z axes, half-length long
     points = data.geom_xpos[geoms] - axes * np.sign(axes[:, 2:3])
     points[:, 2] -= model.geom_size[geoms, 0]
