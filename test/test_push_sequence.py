@@ -15,7 +15,7 @@ from cito_ros.execution.goal import ExecuteGoal, predict
 from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import push_model
 from cito_ros.execution import planning
-from cito_ros.execution.planning import compute
+from cito_ros.execution.planning import compute, side_waypoint
 from cito_ros.model.scene import start_configuration
 from cito_ros.planner.results import tolerance_ratio
 from cito_ros.planner.task import yaw_of
@@ -32,6 +32,12 @@ BETA = 6.684
 OBLIQUE = ExecuteGoal((1.152, 0.078), 0.132)
 OBLIQUE_CUBE = ((1.005, -0.015), -0.1)
 OBLIQUE_BETA = 5.962
+
+# seed 0's goal 22 of `closed-loop --distribution any`, its cube where the first world puts it: 16 cm at 63 degrees
+# to the cube's near face; the side push across to its waypoint lands within 3 times the waypoint's tolerances in
+# the executor's worlds, not within them
+BESIDE = ExecuteGoal((1.0634, -0.1635), 3.1097)
+BESIDE_CUBE = ((1.005, -0.015), -0.1)
 
 # seed 1's goal 5 of `closed-loop --n 40`, 0.2 cm inside the steady push reach, its cube where two pushes left it in
 # the friction x1.5, mass x0.5 world: 4.2 cm short; from the start pose the plate's push to the goal goes beyond the
@@ -143,8 +149,8 @@ def test_a_waypoint_is_a_fraction_below_one(settings):
 
 def test_a_goal_outside_the_near_faces_friction_cone_is_first_pushed_across_on_a_side_face(settings):
     """With pushes left, the first push is on side face 1, sturdy, to the waypoint that leaves the rest of the way
-    along the near face's normal; the turn shared by the two legs as their lengths. With none left, or where the goal
-    is inside the cone (the test above: 13 degrees), the near face's."""
+    along the near face's normal, the cube not turned: the near face's push along the rest makes the turn. With none
+    left, or where the goal is inside the cone (the test above: 13 degrees), the near face's."""
     side, position, yaw = first_push(settings, 2, OBLIQUE, OBLIQUE_CUBE, OBLIQUE_BETA)
     assert side.face == 1 and side.sturdy
     start, yaw0 = np.array(OBLIQUE_CUBE[0]), OBLIQUE_CUBE[1]
@@ -155,7 +161,7 @@ def test_a_goal_outside_the_near_faces_friction_cone_is_first_pushed_across_on_a
     assert math.degrees(math.atan2(aside, along)) > 30.0
     (x, y), target_yaw = side.target
     assert np.allclose((x, y), start + aside * across)
-    assert target_yaw == pytest.approx(yaw0 + aside / (aside + along) * (OBLIQUE.target_yaw_rad - yaw0))
+    assert target_yaw == pytest.approx(yaw0)
     assert np.linalg.norm(position - (x, y)) < settings.task.success_position_error_m  # where the model ends it
     assert abs(yaw - target_yaw) < settings.task.success_orientation_error_rad
     last = compute(settings, OBLIQUE, Job("plan", 0.0, None, start_configuration(OBLIQUE_BETA), OBLIQUE_CUBE, 30.0, None,
@@ -163,6 +169,37 @@ def test_a_goal_outside_the_near_faces_friction_cone_is_first_pushed_across_on_a
     assert last.face == 0 and last.target == (OBLIQUE.target_position_m, OBLIQUE.target_yaw_rad)
     near, _, _ = first_push(settings, 2)
     assert near.face == 0
+
+
+def test_a_side_push_turns_the_cube_only_by_what_the_near_faces_push_after_it_cannot(settings):
+    """The waypoint across the near face's normal keeps the cube's yaw where the push along the rest can make the
+    turn (task.turn_per_push_rad_per_m over that rest), and takes only the excess where it cannot; no waypoint for a
+    goal inside side_first_rad of the normal, or behind the cube."""
+    cube, task = ((1.0, 0.0), 0.0), settings.task
+    long = side_waypoint(settings, ExecuteGoal((1.10, -0.15), -0.5), cube)
+    assert np.allclose(long.target_position_m, (1.0, -0.15)) and long.target_yaw_rad == 0.0
+    short = side_waypoint(settings, ExecuteGoal((1.03, -0.15), -0.7), cube)
+    near_turn_rad = task.success_orientation_error_rad + task.turn_per_push_rad_per_m * 0.03
+    assert np.allclose(short.target_position_m, (1.0, -0.15))
+    assert short.target_yaw_rad == pytest.approx(-(0.7 - near_turn_rad))
+    assert side_waypoint(settings, ExecuteGoal((1.10, 0.02), 0.2), cube) is None
+    assert side_waypoint(settings, ExecuteGoal((0.95, -0.15), 0.0), cube) is None
+
+
+def test_a_side_push_to_its_waypoint_is_made_where_its_worst_world_lands_within_the_waypoint_ratio(settings,
+                                                                                                   monkeypatch):
+    """The pushes after a waypoint correct along the near face's normal and in yaw: the side push across is made
+    where the executor's worlds end it within executor.waypoint_world_ratio of the waypoint's tolerances, sturdy to it
+    or not; held to sturdy (a ratio of 1), that push is not made and the first push is the near face's."""
+    plans = []
+    plan = planning._plan
+    monkeypatch.setattr(planning, "_plan", lambda *args: plans.append(plan(*args)) or plans[-1])
+    side, _, _ = first_push(settings, 2, BESIDE, BESIDE_CUBE, 5.0)
+    assert side.face == 3 and side.target != (BESIDE.target_position_m, BESIDE.target_yaw_rad)
+    assert not side.sturdy and 1.0 <= plans[0].worst_world < settings.executor.waypoint_world_ratio
+    job = Job("plan", 0.0, None, start_configuration(5.0), BESIDE_CUBE, 30.0, None, math.nan, 2)
+    assert planning._side_first(settings.with_overrides({"executor.waypoint_world_ratio": 1.0}), BESIDE, job,
+                                (1.0, 1.0), None) is None
 
 
 def test_a_cube_beside_the_goal_that_no_near_face_push_brings_closer_is_pushed_there_on_a_side_face(settings):

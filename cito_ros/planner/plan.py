@@ -103,6 +103,8 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
     planned_position_error, planned_orientation_error = task.final_errors(planned)  # the paper's, at T
     figures, broken = _executed(discovery.scene, discovery.initial_state, trajectory, rest, tracked_rest, task)
     status = Status.NUMERICAL_ERROR if broken or not planned.finite or planned.warnings else outcome.status
+    worst_world = outcome.executed.worst_world(settings) if outcome.executed is not None and \
+        outcome.executed.world_tracked_errors else math.inf
     metrics = Metrics(
         **figures,
         planned_position_error_m=planned_position_error,
@@ -141,8 +143,8 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         stages=outcome.stages,
         derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
         scene=discovery.scene,
-        sturdy=bool(outcome.executed is not None and outcome.executed.world_tracked_errors
-                    and outcome.executed.worst_world(settings) < 1.0),
+        sturdy=bool(worst_world < 1.0),
+        worst_world=worst_world,
         note=outcome.note,
         aim_position_m=None if task.aim_position_m is None else task.aim_position_m.copy(),
     )

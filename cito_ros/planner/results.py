@@ -245,6 +245,8 @@ class PlanResult:
     scene: Scene                     # where it was planned: the object's start pose, the geometry to draw
     sturdy: bool = False             # tracked to within the task's tolerances in the model and in every world of
                                      # tracking.world_*_scales, as the search judged it (False: other worlds not asked)
+    worst_world: float = math.inf    # the largest tolerance ratio at rest in those worlds (Executed.worst_world;
+                                     # below 1: sturdy; inf: not asked)
     note: str = ""                   # what the search could not try, which an answer that misses says
     aim_position_m: np.ndarray | None = None  # where the pushes aimed past the goal (PushTask.aim_position_m)
     legs: tuple["PlanResult", ...] = ()  # a sequence's pushes (cito_ros.planner.sequence), each planned from where

@@ -95,6 +95,9 @@ class ExecutorSettings:
     side_when_stuck: bool = setting(
         "after a push, where no push on the near face would bring the cube closer (the executor would end there), a "
         "push to the goal on the side face it needs is planned, and made where it is sturdy and brings it closer")
+    waypoint_world_ratio: float = setting(
+        "side_first_rad's push to its waypoint is made where its worst world ends within this many times the "
+        "tolerances of the waypoint (1: sturdy to it): the pushes after it correct the rest", minimum=1.0)
     waypoint_fraction: float = setting("a push whose plan to the goal is not sturdy (PlanResult.sturdy), with pushes "
                                        "left after it, is planned again to this fraction of the way there, and that "
                                        "plan taken if it is sturdy (0: never)", minimum=0.0)
