@@ -21,7 +21,7 @@ from cito_ros.planner.physical import side_start
 from cito_ros.planner.plan import plan_push
 from cito_ros.planner.results import PlanResult, Status, tolerance_ratio, within_limits
 from cito_ros.planner.side_faces import NEAR, across_first
-from cito_ros.planner.task import cube_turn_rad, nearest_equivalent_yaw, yaw_of
+from cito_ros.planner.task import cube_turn_rad, nearest_equivalent_yaw, push_turn_limit_rad, yaw_of
 from cito_ros.settings import Settings
 
 
@@ -166,7 +166,7 @@ def side_waypoint(settings: Settings, goal: ExecuteGoal, object_pose: tuple[tupl
                   ) -> ExecuteGoal | None:
     """Where executor.side_first_rad's side push takes a cube at object_pose ((x, y), yaw) on its way to the goal:
     across the near face's inward normal to the line that leaves the rest of the way along it, turned only by what
-    the near face's push along that rest cannot turn it (task.turn_per_push_rad_per_m: a side push that also turns
+    the near face's push along that rest cannot turn it (push_turn_limit_rad: a side push that also turns
     the cube lands it far off, goal 2 of docs/results.md's any distribution 8.6 cm and 0.6 rad off such a waypoint
     in the model). None for a goal within side_first_rad of the normal, or behind the cube."""
     (x, y), yaw = object_pose
@@ -174,9 +174,8 @@ def side_waypoint(settings: Settings, goal: ExecuteGoal, object_pose: tuple[tupl
     if settings.executor.side_first_rad <= 0.0 or along_m <= 0.0 or \
             abs(math.atan2(across_m, along_m)) <= settings.executor.side_first_rad:
         return None
-    task, turn_rad = settings.task, cube_turn_rad(yaw, goal.target_yaw_rad)
-    side_turn_rad = max(abs(turn_rad) - task.success_orientation_error_rad - task.turn_per_push_rad_per_m * along_m,
-                        0.0)
+    turn_rad = cube_turn_rad(yaw, goal.target_yaw_rad)
+    side_turn_rad = max(abs(turn_rad) - push_turn_limit_rad(settings.task, along_m), 0.0)
     return dataclasses.replace(goal, target_position_m=waypoint_xy,
                                target_yaw_rad=yaw + math.copysign(side_turn_rad, turn_rad))
 

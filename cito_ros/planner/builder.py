@@ -18,7 +18,7 @@ from cito_ros.model.simulator import Simulator
 from cito_ros.planner import push_limits
 from cito_ros.planner.problem import PushProblem, StageCost
 from cito_ros.planner.side_faces import NEAR, face_for
-from cito_ros.planner.task import PushTask, aim_past_m, nearest_equivalent_yaw, turn_rad, yaw_of
+from cito_ros.planner.task import PushTask, aim_past_m, nearest_equivalent_yaw, push_turn_limit_rad, turn_rad, yaw_of
 from cito_ros.settings import SceneConfig, Settings
 from cito_ros.settings.typed_config import require_finite
 
@@ -139,7 +139,7 @@ def check_pushable(scene: Scene, initial_state: np.ndarray, task: PushTask, sett
                          f"only a pull on its far face does, {pull}")
     distance_m = float(np.linalg.norm(task.aim_m[:2] - qpos[:2]))  # the push's: to the aim past the goal (make_task)
     limits = settings.task
-    most_rad = limits.success_orientation_error_rad + limits.turn_per_push_rad_per_m * distance_m
+    most_rad = push_turn_limit_rad(limits, distance_m)
     if turn > most_rad:
         aimed = "" if task.aim_position_m is None else \
             f" (aimed {100 * aim_past_m(task.target_position_m, task.aim_position_m):.1f} cm past the goal)"

@@ -143,7 +143,6 @@ def evaluate_plan(outcome: Outcome, posed: PlanningProblem, settings: Settings) 
         stages=outcome.stages,
         derivative_info=dict(discovery.evaluate(outcome.planned_z).derivative_info),
         scene=discovery.scene,
-        sturdy=bool(worst_world < 1.0),
         worst_world=worst_world,
         note=outcome.note,
         aim_position_m=None if task.aim_position_m is None else task.aim_position_m.copy(),
@@ -204,7 +203,7 @@ def _judge_sequence(posed: PlanningProblem, settings: Settings) -> sequence.Judg
             aim_position_m=None if posed.task.aim_position_m is None else posed.task.aim_position_m.copy(),
             trajectory=motion, tracked=tracked,
             rest=rest, tracked_rest=tracked_rest, metrics=metrics, stages=stages, scene=posed.scene,
-            iteration_log=tuple(entry for leg in legs for entry in leg.iteration_log), sturdy=False, legs=legs,
+            iteration_log=tuple(entry for leg in legs for entry in leg.iteration_log), worst_world=math.inf, legs=legs,
             note="; ".join(leg.note for leg in legs if leg.note))
 
     return judge

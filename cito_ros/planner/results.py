@@ -243,10 +243,9 @@ class PlanResult:
     stages: tuple[StageRecord, ...]
     derivative_info: dict[str, int]
     scene: Scene                     # where it was planned: the object's start pose, the geometry to draw
-    sturdy: bool = False             # tracked to within the task's tolerances in the model and in every world of
-                                     # tracking.world_*_scales, as the search judged it (False: other worlds not asked)
-    worst_world: float = math.inf    # the largest tolerance ratio at rest in those worlds (Executed.worst_world;
-                                     # below 1: sturdy; inf: not asked)
+    worst_world: float = math.inf    # the largest tolerance ratio at rest in the model and in every world of
+                                     # tracking.world_*_scales, as the search judged it (Executed.worst_world; inf:
+                                     # other worlds not asked)
     note: str = ""                   # what the search could not try, which an answer that misses says
     aim_position_m: np.ndarray | None = None  # where the pushes aimed past the goal (PushTask.aim_position_m)
     legs: tuple["PlanResult", ...] = ()  # a sequence's pushes (cito_ros.planner.sequence), each planned from where
@@ -262,6 +261,11 @@ class PlanResult:
     @property
     def status(self) -> Status:
         return self.metrics.status
+
+    @property
+    def sturdy(self) -> bool:
+        """Tracked to within the task's tolerances in the model and in every world it was checked in."""
+        return self.worst_world < 1.0
 
     @property
     def knot_q(self) -> np.ndarray:

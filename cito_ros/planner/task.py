@@ -66,6 +66,12 @@ def cube_turn_rad(from_yaw_rad: float, to_yaw_rad: float) -> float:
     return turn_rad(from_yaw_rad, nearest_equivalent_yaw(to_yaw_rad, from_yaw_rad))
 
 
+def push_turn_limit_rad(task_settings, distance_m: float) -> float:
+    """The most one push over distance_m turns the object (task.turn_per_push_rad_per_m on top of the orientation
+    tolerance): what a goal may ask of one push (builder.check_pushable)."""
+    return task_settings.success_orientation_error_rad + task_settings.turn_per_push_rad_per_m * distance_m
+
+
 def quarter_turns(requested_yaw_rad: float, taken_yaw_rad: float) -> int:
     """How many quarter turns (counter-clockwise positive) the yaw aimed at (make_task) lies from the one requested."""
     return round(turn_rad(requested_yaw_rad, taken_yaw_rad) / QUARTER_TURN_RAD)
