@@ -12,11 +12,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
 from action_msgs.msg import GoalStatus
 from cito_msgs.action import ExecutePush
+from rclpy.context import Context
+from rclpy.experimental import EventsExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
 from cito_ros.cli.closed_loop_ros import closed_loop_episode
 from cito_ros.execution.goal import ExecuteGoal
+from cito_ros.ros.sim_robot import TRUE_POSE_EVERY
 from cito_ros.ros.sim_session import BIN, Operator, stop
 from cito_ros.studies import closed_loop, targets
 
@@ -146,6 +153,60 @@ def test_the_simulated_robot_says_when_it_fell_behind_real_time(tmp_path):
         stop(sim)
 
 
+def test_the_simulated_robots_joint_speed_peaks_are_the_largest_speeds_of_its_joint_states(tmp_path):
+    """A judge that takes /sim/joint_speed_peaks at 20 Hz sees the largest speed every joint had in the joint states
+    of those steps, to the bit: the arm falling under zero torques (the robot adds no gravity compensation)."""
+    domain = 171 + os.getpid() % 20
+    sim = launch("cito-sim-robot", domain, "beta:=7.0")
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    node = rclpy.create_node("speed_judge", context=context)
+    executor = EventsExecutor(context=context)
+    executor.add_node(node)
+    states, peaks = [], []
+    qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(JointState, "/joint_states", states.append, qos)
+    node.create_subscription(JointState, "/sim/joint_speed_peaks", peaks.append, qos)
+    commands = node.create_publisher(Float64MultiArray, "/effort_controller/commands", qos)
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(peaks) < 2 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        assert len(peaks) >= 2, "no joint speed peaks from the simulated robot"
+        states.clear()
+        peaks.clear()
+        began = time.monotonic()
+        while time.monotonic() - began < 1.5:
+            commands.publish(Float64MultiArray(data=[0.0] * 7))
+            executor.spin_once(timeout_sec=0.005)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        stop(sim)
+
+    def stamp(message) -> int:
+        return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+
+    # a peak goes out with the joint state of its last step, under the same header
+    stamps = [stamp(m) for m in states]
+    index = {s: i for i, s in enumerate(stamps)}
+    step_ns = float(np.median(np.diff(stamps)))
+    windows = 0
+    for peak in peaks[1:]:
+        last = index.get(stamp(peak))
+        if last is None or last < TRUE_POSE_EVERY - 1:
+            continue
+        window = range(last - TRUE_POSE_EVERY + 1, last + 1)
+        gaps = np.diff([stamps[i] for i in window])
+        if np.all(np.abs(gaps - step_ns) < 0.5 * step_ns):  # every joint state of its steps came
+            windows += 1
+            assert np.array_equal(np.max([np.abs(states[i].velocity) for i in window], axis=0),
+                                  np.asarray(peak.velocity)), stamp(peak)
+    assert windows >= 10, f"{windows} windows with all their joint states of {len(peaks)} peaks"
+    assert max(max(p.velocity) for p in peaks) > 0.05  # the arm moved
+
+
 def test_ctrl_c_stops_the_node_and_its_planner_process_quietly(tmp_path):
     """A terminal's Ctrl-C reaches the node's whole process group, its planner's process too: the node shuts down
     with exit code 0, and no process prints a traceback."""
@@ -215,10 +276,10 @@ def test_a_second_goal_is_rejected_while_one_runs_and_a_cancel_holds_the_arm(rob
     assert result.status == GoalStatus.STATUS_CANCELED, result.result.message
     assert result.result.status == Result.STATUS_CANCELLED and not result.result.success
     assert "held" in result.result.message
-    operator.joints.clear()
+    operator.speed_peaks.clear()
     operator.spin(1.5)  # after the cancel the arm is held: it comes to rest and stays
-    speeds = np.array([np.abs(m.velocity).max() for m in operator.joints[-40:]])
-    assert len(speeds) == 40 and speeds.max() < 0.05
+    speeds = np.array([max(m.velocity) for m in operator.speed_peaks[-4:]])  # its last 40 steps
+    assert len(speeds) == 4 and speeds.max() < 0.05
     assert sim.poll() is None and node.poll() is None
 
 
