@@ -11,8 +11,8 @@ publishes /joint_states (sensor_msgs/JointState, j0..j6) every step and /object/
 frame world) at the camera's rate, noisy and late by its latency; for judging only, at 20 Hz,
 /sim/true_object_pose and /sim/joint_speed_peaks (sensor_msgs/JointState, j0..j6: in velocity each joint's largest
 |speed| over the steps since the last, so a judge need not take every joint state: 200 a second cost its Python
-a third of a core, which the planner beside it then lacked). The declared parameters set the world's differences from the planner's model (the default is the nominal
-world: none); cito_ros.execution.world is the world itself.
+a third of a core, which the planner beside it then lacked). The declared parameters set the world's differences
+from the planner's model (the default is the nominal world: none); cito_ros.execution.world is the world itself.
 """
 from __future__ import annotations
 
