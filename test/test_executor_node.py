@@ -12,18 +12,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 from action_msgs.msg import GoalStatus
 from cito_msgs.action import ExecutePush
-from rclpy.context import Context
-from rclpy.experimental import EventsExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from cito_ros.cli.closed_loop_ros import closed_loop_episode
 from cito_ros.execution.goal import ExecuteGoal
-from cito_ros.ros.sim_robot import TRUE_POSE_EVERY
+from cito_ros.ros.sim_robot import TRUTH_EVERY
 from cito_ros.ros.sim_session import BIN, Operator, stop
 from cito_ros.studies import closed_loop, targets
 
@@ -158,31 +155,21 @@ def test_the_simulated_robots_joint_speed_peaks_are_the_largest_speeds_of_its_jo
     of those steps, to the bit: the arm falling under zero torques (the robot adds no gravity compensation)."""
     domain = 171 + os.getpid() % 20
     sim = launch("cito-sim-robot", domain, "beta:=7.0")
-    context = Context()
-    rclpy.init(context=context, domain_id=domain)
-    node = rclpy.create_node("speed_judge", context=context)
-    executor = EventsExecutor(context=context)
-    executor.add_node(node)
-    states, peaks = [], []
+    operator = Operator(domain)  # the judge: it takes the peaks; here it takes every joint state too
+    states, peaks = [], operator.speed_peaks
     qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
-    node.create_subscription(JointState, "/joint_states", states.append, qos)
-    node.create_subscription(JointState, "/sim/joint_speed_peaks", peaks.append, qos)
-    commands = node.create_publisher(Float64MultiArray, "/effort_controller/commands", qos)
+    operator.node.create_subscription(JointState, "/joint_states", states.append, qos)
+    commands = operator.node.create_publisher(Float64MultiArray, "/effort_controller/commands", qos)
     try:
-        deadline = time.monotonic() + 60.0
-        while len(peaks) < 2 and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
-        assert len(peaks) >= 2, "no joint speed peaks from the simulated robot"
+        assert operator.spin_until(lambda: len(peaks) >= 2, 60.0), "no joint speed peaks from the simulated robot"
         states.clear()
         peaks.clear()
         began = time.monotonic()
         while time.monotonic() - began < 1.5:
             commands.publish(Float64MultiArray(data=[0.0] * 7))
-            executor.spin_once(timeout_sec=0.005)
+            operator.executor.spin_once(timeout_sec=0.005)
     finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
+        operator.close()
         stop(sim)
 
     def stamp(message) -> int:
@@ -195,9 +182,9 @@ def test_the_simulated_robots_joint_speed_peaks_are_the_largest_speeds_of_its_jo
     windows = 0
     for peak in peaks[1:]:
         last = index.get(stamp(peak))
-        if last is None or last < TRUE_POSE_EVERY - 1:
+        if last is None or last < TRUTH_EVERY - 1:
             continue
-        window = range(last - TRUE_POSE_EVERY + 1, last + 1)
+        window = range(last - TRUTH_EVERY + 1, last + 1)
         gaps = np.diff([stamps[i] for i in window])
         if np.all(np.abs(gaps - step_ns) < 0.5 * step_ns):  # every joint state of its steps came
             windows += 1

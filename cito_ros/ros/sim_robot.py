@@ -36,7 +36,7 @@ from cito_ros.ros.messages import pose_msg, time_msg
 from cito_ros.ros.process import LoopNode, run
 from cito_ros.settings import SceneConfig, load_settings
 
-TRUE_POSE_EVERY = 10  # steps: the truth, for judging, at 20 Hz (the true pose, the joint speed peaks)
+TRUTH_EVERY = 10  # steps: the truth for judging (the true pose, the joint speed peaks) at 20 Hz
 RESYNC_S = 0.05  # a simulation that falls this far behind real time drops the lag rather than racing to catch up
 # name -> (default, description)
 PARAMETERS = {
@@ -143,7 +143,7 @@ class SimRobot(Node):
                     header=Header(stamp=time_msg(int((origin + reading.stamp_s) * 1e9)), frame_id="world"),
                     pose=pose_msg(reading.position_m, reading.quaternion)))
             np.maximum(peaks, np.abs(joints.qdot), out=peaks)
-            if round(world.time_s / world.timestep_s) % TRUE_POSE_EVERY == 0:
+            if round(world.time_s / world.timestep_s) % TRUTH_EVERY == 0:
                 position, quaternion = world.true_object_pose()
                 self.true_pose.publish(PoseStamped(header=header, pose=pose_msg(position, quaternion)))
                 self.speed_peaks.publish(JointState(header=header, name=list(ARM_JOINTS), velocity=peaks.tolist()))
