@@ -12,6 +12,7 @@ from cito_ros.execution.planning import compute, work_in_line
 from cito_ros.execution.policy import Policy
 from cito_ros.execution.world import JointReading
 from cito_ros.model.scene import start_configuration
+from cito_ros.planner.problem import PushProblem
 from test_estimator import seen_at_rest
 from test_execution import deliver, push_under_way, started
 
@@ -125,3 +126,28 @@ def test_a_push_to_a_waypoint_is_replanned_to_that_waypoint_not_on_to_the_goal(s
         return float(np.hypot(*(executor.model.scene.object_qpos(policy.final_state)[:2] - waypoint[0])))
 
     assert from_waypoint_m(to_waypoint) < from_waypoint_m(to_goal)
+
+
+def test_a_replan_linearizes_every_other_step_and_where_the_plate_first_touches_and_last_leaves_the_cube(settings):
+    """executor.replan_switches ends: the plate chatters on the face it pushes, its contact switching on and off
+    all along the push; a replan linearizes the even steps and the steps around the contact's first beginning and
+    last end as in full, and a switch between them takes the Jacobians of the step before."""
+    executor, _ = push_under_way(settings)
+    model, policy = executor.model, executor.policy
+    problem = model.problem(policy.reference[0], len(policy.torques_Nm), policy.torques_Nm,
+                            model.task_to(policy.target))
+    exact_problem = PushProblem(problem.simulator, problem.initial_state, problem.task, problem.cost,
+                                dataclasses.replace(problem.derivative_settings, stride=1),
+                                problem.position_scale_min_m)
+    z = problem.with_torques(policy.torques_Nm)
+    replanned, exact = problem.linearize(z), exact_problem.linearize(z)
+    found = problem.evaluate(z).sensordata[:, model.scene.sensors.contact_found.start] > 0
+    switches = np.flatnonzero(found[1:] != found[:-1]) + 1
+    inner_odd = switches[1:-1][switches[1:-1] % 2 == 1]
+    inner_odd = inner_odd[~np.isin(inner_odd, switches[[0, -1]] - 1)]
+    assert inner_odd.size >= 3  # the chatter: switches no even step nor the contact's ends cover
+    ends = switches[[0, -1]]
+    computed = np.union1d(np.arange(0, len(found), 2), np.union1d(ends - 1, ends))
+    np.testing.assert_array_equal(replanned.A[computed], exact.A[computed])
+    np.testing.assert_array_equal(replanned.A[inner_odd], replanned.A[inner_odd - 1])
+    assert not np.array_equal(replanned.A[inner_odd], exact.A[inner_odd])

@@ -75,7 +75,8 @@ class PushModel:
         self.control_period_s = settings.control_period_s
         self.servo_gains = servo_gains(settings)
         self.servo_tracking = servo_tracking(settings)
-        self._gradient = dataclasses.replace(settings.gradient, stride=settings.executor.replan_stride)  # replans'
+        self._gradient = dataclasses.replace(settings.gradient, stride=settings.executor.replan_stride,  # replans'
+                                             switches=settings.executor.replan_switches)
         self._simulators: dict[int, Simulator] = {}
         self._tasks: dict[tuple, PushTask] = {}
         self._data = mujoco.MjData(self.scene.model)

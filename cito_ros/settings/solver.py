@@ -22,6 +22,10 @@ class DerivativeSettings:
     threads: int = setting("linearization threads, one mjData each", minimum=1)
     stride: int = setting("every stride-th step linearized, the steps between taking the Jacobians of the one "
                           "before (1: every step)", minimum=1)
+    switches: str = setting("with a stride, also linearized where the plate's contact with the object begins or "
+                            "ends: at every such step (every), or only where it first begins and last ends (ends: "
+                            "a plate chattering on a face switches at a third of the steps)",
+                            choices=("every", "ends"))
 
 
 @dataclass(frozen=True)

@@ -151,13 +151,16 @@ class ProblemDerivatives:
         return evaluation.linearization
 
     def _linearized_steps(self, found: np.ndarray) -> np.ndarray | None:
-        """The steps linearized (None: every one): every gradient.stride-th, and every step where the plate's contact
-        with the object (`found`, per step) begins or ends (an impact's Jacobians are like no step's around it:
-        copied from the step before, they turned a strike's gradient around)."""
+        """The steps linearized (None: every one): every gradient.stride-th, and where the plate's contact with the
+        object (`found`, per step) begins or ends (an impact's Jacobians are like no step's around it: copied from
+        the step before, they turned a strike's gradient around): at every such step, or with gradient.switches
+        `ends` only at the first and the last (a plate chattering on the face switches at every third step)."""
         stride, T = self.derivative_settings.stride, self.n_steps
         if stride == 1:
             return None
         switch = np.flatnonzero(found[1:] != found[:-1])
+        if self.derivative_settings.switches == "ends":
+            switch = switch[[0, -1]] if switch.size else switch
         return np.unique(np.concatenate([np.arange(0, T, stride), switch, switch + 1]))
 
     def _adjoint(self, evaluation: Evaluation):
