@@ -128,18 +128,23 @@ def test_a_goal_given_a_quarter_turn_round_is_pushed_to_as_the_same_pose_of_the_
 
 def test_where_neither_plan_is_sturdy_the_one_the_model_has_nearer_the_goal_is_made(settings):
     """In worlds of friction x0.1-2.5 (where the run's were those of the friction it had identified), neither the
-    push to the goal nor the waypoint's is sturdy; the waypoint's moves the cube closer, the goal's not at all. (At
-    x0.3-1.7 the waypoint's plan came out sturdy on one machine, its worst world at 0.94 of the tolerances, and not on
-    another: x0.1-2.5 leaves it at 1.23.)"""
+    push to the goal nor the waypoint's is sturdy; the push made is the one the model has nearer the goal, and it
+    brings the cube closer. Which one that is hangs on the machine: where the test was written, the push to the goal
+    never touched the cube and the waypoint's was made; on an AMD EPYC on 2026-12-07 the same 20 iterations end
+    elsewhere, the push to the goal leaves the cube 2.56 cm and 0.102 rad off (from 4.20 cm and 0.092 rad), nearer than
+    the waypoint's, and it is made. (At x0.3-1.7 the waypoint's plan came out sturdy on one machine, its worst world at
+    0.94 of the tolerances, and not on another: x0.1-2.5 leaves it at 1.23-1.26.)"""
     settings, task = at_planners_horizon(settings).with_overrides(
         {"executor.world_friction_scales": [0.1, 0.1, 2.5, 2.5]}), settings.task
     alone = settings.with_overrides({"executor.plan_iterations": settings.executor.direct_iterations})
     direct, position, yaw = first_push(alone, 0, EDGE, EDGE_CUBE, EDGE_BETA)  # the plan to the goal as planned first
-    assert EDGE.errors(position, yaw) == pytest.approx(EDGE.errors(*EDGE_CUBE), abs=1e-3), \
-        "the premise: the push to the goal leaves the cube where it is"
+    assert not direct.sturdy, "the premise: the push to the goal is not sturdy"
+    direct_ratio = tolerance_ratio(*EDGE.errors(position, yaw), task)
     policy, position, yaw = first_push(settings, 2, EDGE, EDGE_CUBE, EDGE_BETA)
     assert not policy.sturdy
-    assert tolerance_ratio(*EDGE.errors(position, yaw), task) < tolerance_ratio(*EDGE.errors(*EDGE_CUBE), task)
+    made_ratio = tolerance_ratio(*EDGE.errors(position, yaw), task)
+    assert made_ratio <= direct_ratio + 1e-9  # never the one further from the goal
+    assert made_ratio < tolerance_ratio(*EDGE.errors(*EDGE_CUBE), task)
 
 
 def test_a_waypoint_is_a_fraction_below_one(settings):
