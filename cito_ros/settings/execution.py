@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from cito_ros.settings.solver import SWITCHES
 from cito_ros.settings.typed_config import setting
 
 
@@ -75,7 +76,7 @@ class ExecutorSettings:
     replan_stride: int = setting("a replan linearizes every this many simulation steps, the steps between taking "
                                  "the Jacobians of the one before (gradient.stride)", minimum=1)
     replan_switches: str = setting("the contact's switches a replan also linearizes (gradient.switches)",
-                                   choices=("every", "ends"))
+                                   choices=SWITCHES)
     min_replan_knots: int = setting("no replan with fewer knots of the push left", minimum=1)
     feedback_regularization: float = setting("mu of the backward pass a plan's feedback gains come from, where "
                                              "no iLQR step gave them", positive=True)

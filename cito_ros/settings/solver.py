@@ -13,6 +13,9 @@ def _options(value: Any, name: str) -> tuple[tuple[str, Any], ...]:
     return tuple(value.items())
 
 
+SWITCHES = ("every", "ends")  # gradient.switches and executor.replan_switches
+
+
 @dataclass(frozen=True)
 class DerivativeSettings:
     method: str = setting("adjoint (per-step linearization) or forward_differences (knot restarts)",
@@ -25,7 +28,7 @@ class DerivativeSettings:
     switches: str = setting("with a stride, also linearized where the plate's contact with the object begins or "
                             "ends: at every such step (every), or only where it first begins and last ends (ends: "
                             "a plate chattering on a face switches at a third of the steps)",
-                            choices=("every", "ends"))
+                            choices=SWITCHES)
 
 
 @dataclass(frozen=True)

@@ -154,7 +154,7 @@ class ProblemDerivatives:
         """The steps linearized (None: every one): every gradient.stride-th, and where the plate's contact with the
         object (`found`, per step) begins or ends (an impact's Jacobians are like no step's around it: copied from
         the step before, they turned a strike's gradient around): at every such step, or with gradient.switches
-        `ends` only at the first and the last (a plate chattering on the face switches at every third step)."""
+        `ends` only at the first and the last (a plate chattering on the face switches at a third of the steps)."""
         stride, T = self.derivative_settings.stride, self.n_steps
         if stride == 1:
             return None
