@@ -14,7 +14,9 @@ come to rest; then the push is judged by the camera: at the goal, done; else, wh
 `retreating`: the arm goes back along a minimum-jerk path to where the execution started (from a side push, the
 way it came), and a new push is planned from there meanwhile, made once the arm is there and only if the model
 predicts it brings the cube closer (both errors against their tolerances) and moves it by more than
-executor.moved_fraction of them), `done`. An execution begun with the arm against the cube (where the last one
+executor.moved_fraction of them), `done`. A cube at rest within the tolerances but turned by more than
+executor.polish_orientation_rad allows is pushed again, where a push sturdy to that yaw is found (goal.polishing);
+where none is, it is done, a success. An execution begun with the arm against the cube (where the last one
 ended or was cancelled) begins `retreating` to the start pose of settings.beta. Measurements older than
 executor.stale_after_s, a cancel, the time limit, a cube seen tipped past its edge or a push that cannot be planned
 end the execution with the arm held where it is.
@@ -31,7 +33,7 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over
-from cito_ros.execution.goal import ExecuteGoal, cube_in, moved_beyond, predict
+from cito_ros.execution.goal import ExecuteGoal, cube_in, moved_beyond, polishing, predict
 from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import push_model
 from cito_ros.execution.policy import Policy, Retreat, robot_torques
@@ -159,6 +161,8 @@ class Executor:
                                                        f"{math.degrees(self.estimator.tilt_rad):.0f} degrees from "
                                                        f"upright): the arm is held where it is", joints.q, "tipped")
         if now_s - self.started_s > self.time_limit_s:
+            if self.cube_at_rest and self._succeeded(*self.errors(now_s), " when the time ran out", polish=False):
+                return
             return self._end(Ending.TIME_LIMIT, f"the {self.time_limit_s:g} s time limit ran out", joints.q)
         if self.phase is Phase.RETREATING and now_s >= self._retreat.end_s:
             self.phase, self._hold_q = Phase.PLANNING, self._home_q.copy()
@@ -191,7 +195,8 @@ class Executor:
             arm = np.array(arm)
             if len(arm) > 1 and cube:  # what the push showed of the cube (identify)
                 self.observed.append(Observed(start, arm, np.array(cube)))
-            if self._succeeded(position, orientation, ""):
+            if self._succeeded(position, orientation, "",
+                               polish=self.pushes < self.settings.executor.max_pushes):
                 return
             if self.pushes >= self.settings.executor.max_pushes:
                 return self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
@@ -219,9 +224,12 @@ class Executor:
         planned = self.model.scene.object_qpos(reference[step])
         return math.hypot(x - planned[0], y - planned[1])
 
-    def _succeeded(self, position_m: float, orientation_rad: float, after: str) -> bool:
-        """Whether the camera sees the cube at rest within executor.done_fraction of the tolerances: then it ends."""
-        if tolerance_ratio(position_m, orientation_rad, self.settings.task) < self.settings.executor.done_fraction:
+    def _succeeded(self, position_m: float, orientation_rad: float, after: str, polish: bool = True) -> bool:
+        """Whether the camera sees the cube at rest within executor.done_fraction of the tolerances, and with
+        `polish` of executor.polish_orientation_rad too (polishing): then it ends."""
+        executor = self.settings.executor
+        if tolerance_ratio(position_m, orientation_rad, self.settings.task) < executor.done_fraction and not (
+                polish and polishing(self.settings, position_m, orientation_rad)):
             self._end(Ending.SUCCEEDED, f"the cube is {100 * position_m:.2f} cm and {orientation_rad:.3f} rad from "
                                         f"the goal after {self.pushes} push(es){after}", None)
             return True
@@ -301,6 +309,8 @@ class Executor:
             if self.phase not in expected:
                 return None
             if isinstance(outcome, Failure):
+                if job.kind == "plan" and self._polished(job, outcome.message):
+                    return None
                 ending, cause = outcome.ending, None
                 if ending is Ending.INVALID_REQUEST and self.pushes:  # the goal was posed; no next push reaches it
                     ending, cause = Ending.TASK_NOT_ACHIEVED, "no_push_from_here"
@@ -311,10 +321,14 @@ class Executor:
             if job.kind == "plan" and self.pushes:
                 # a push that would not bring the cube closer, nor hardly move it, is not made, nor left to run out
                 # the time (Prediction)
-                seen = predict(self.settings, self.model.scene, self.goal, job.object_pose, outcome)
+                seen = predict(polishing(self.settings, *self.goal.errors(*job.object_pose)) or self.settings,
+                               self.model.scene, self.goal, job.object_pose, outcome)
                 if not seen.closer:
-                    position, orientation = self.goal.errors(*job.object_pose)
                     (off_m, off_rad), (moved_m, moved_rad) = seen.predicted, seen.moved
+                    if self._polished(job, f"the best push found would leave it {100 * off_m:.2f} cm and "
+                                           f"{off_rad:.3f} rad off"):
+                        return None
+                    position, orientation = self.goal.errors(*job.object_pose)
                     self._end(Ending.TASK_NOT_ACHIEVED, f"after {self.pushes} push(es) the cube is "
                                                         f"{100 * position:.2f} cm and {orientation:.3f} rad from the "
                                                         f"goal, and the best push found would leave it "
@@ -331,6 +345,18 @@ class Executor:
                 self.replans_taken += 1
             self._pending = Work(outcome, effective, elapsed_s, job.kind)
             return self._pending
+
+    def _polished(self, job: Job, why: str) -> bool:
+        """Where the job's push was to polish the cube's yaw (polishing) and none is made, the execution ends a
+        success, the arm held where it is."""
+        position, orientation = self.goal.errors(*job.object_pose)
+        if polishing(self.settings, position, orientation) is None:
+            return False
+        self._end(Ending.SUCCEEDED, f"the cube is {100 * position:.2f} cm and {orientation:.3f} rad from the goal "
+                                    f"after {self.pushes} push(es), no push turning it within "
+                                    f"{self.settings.executor.polish_orientation_rad:g} rad ({why})",
+                  None if self._joints is None else self._joints.q)
+        return True
 
     @property
     def first_push_sturdy(self) -> bool | None:

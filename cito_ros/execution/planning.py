@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from cito_ros.execution.executor import Ending, Executor, Failure, Job, Work
-from cito_ros.execution.goal import ExecuteGoal, moved_beyond, predict
+from cito_ros.execution.goal import ExecuteGoal, moved_beyond, polishing, predict
 from cito_ros.execution.identify import identify
 from cito_ros.execution.mpc import executor_costs, push_model, servo_tracking
 from cito_ros.execution.policy import Policy
@@ -62,11 +62,15 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     had been made, and the execution ended with no closer push where the waypoint's moved it closer). After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it; where that push would not bring the cube closer (the executor ends there), the side face's push to the goal
-    is planned (executor.side_when_stuck) and made where it is sturdy and does. A push's plans share one
-    executor.plan_time_limit_s of wall clock, each given what the ones before it left (at least a second)."""
+    is planned (executor.side_when_stuck) and made where it is sturdy and does. A cube at rest within the
+    tolerances but turned more than executor.polish_orientation_rad allows (polishing) gets one plan to the goal with
+    that yaw tolerance, within executor.plan_iterations, returned only where it is sturdy to it (else a Failure: the
+    executor ends a success). A push's plans share one executor.plan_time_limit_s of wall clock, each given what the
+    ones before it left (at least a second)."""
     if job.kind == "replan":  # in the model the running push was planned in: its knots, its cube
         return push_model(_knotted(settings, job.running.control_period_s), goal, job.running.object_scales).replan(
             job.now_s, job.state, job.running, settings.executor.replan_budget_s)
+    polish = polishing(settings, *goal.errors(*job.object_pose))  # its push planned to the tighter yaw, run as any other
     model = push_model(settings, goal)
     executor = settings.executor
     deadline = time.perf_counter() + min(job.time_left_s, executor.plan_time_limit_s)
@@ -80,12 +84,12 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
                         executor.identify_friction_scales, executor.identified_spread, executor.identify_tolerance)
         scales, worlds = (cube.friction_scale, 1.0), [cube.worlds(executor.world_friction_scales),
                                                       executor.world_mass_scales]
-    side = _side_first(settings, goal, left(), scales, worlds)
+    side = None if polish else _side_first(settings, goal, left(), scales, worlds)
     if side is not None:
         return side
     try:
-        sequence = job.pushes_left > 0 and executor.waypoint_fraction > 0
-        request, result = _plan_to(settings, goal, left(), 1.0,
+        sequence = job.pushes_left > 0 and executor.waypoint_fraction > 0 and polish is None
+        request, result = _plan_to(polish or settings, goal, left(), 1.0,
                                    executor.direct_iterations if sequence else executor.plan_iterations, scales, worlds)
         if sequence and not result.sturdy:
             shorter = _plan_to(settings, goal, left(), executor.waypoint_fraction, executor.plan_iterations, scales,
@@ -97,8 +101,11 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
+    if polish and not result.sturdy:
+        return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found is sturdy to within "
+                                                 f"{executor.polish_orientation_rad:g} rad")
     policy = _policy(settings, goal, job, request, result, scales)
-    if executor.side_when_stuck and job.pushes_left < executor.max_pushes - 1 and \
+    if executor.side_when_stuck and not polish and job.pushes_left < executor.max_pushes - 1 and \
             not predict(settings, model.scene, goal, job.object_pose, policy).closer:
         # no near-face push brings the cube closer (one beside the goal and a little past it: pushed further along,
         # it goes further past): the side face's push to the goal, where it is sturdy and does

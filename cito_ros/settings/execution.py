@@ -88,6 +88,10 @@ class ExecutorSettings:
                                    "fraction of the task's tolerances (the larger of position and yaw): the camera's "
                                    "resting pose is off the truth by millimetres and hundredths of a radian",
                                    positive=True)
+    polish_orientation_rad: float = setting(
+        "a cube at rest within done_fraction of the task's tolerances but turned by more than done_fraction of this "
+        "from the goal is pushed again, a push planned with this as the yaw tolerance and made only where it is "
+        "sturdy to it; where there is none the execution ends a success (0: never; rad)", minimum=0.0)
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
