@@ -73,3 +73,9 @@ def test_the_same_failure_for_a_cube_outside_the_tolerances_ends_the_task_not_ac
     executor, job = after_a_push(settings, TURNED, ((1.08, -0.019), -0.0085), TURNED_BETA)
     assert executor.accept(job, Failure(Ending.INVALID_REQUEST, "no push can be planned from here"), 1.0) is None
     assert executor.ending is Ending.TASK_NOT_ACHIEVED and executor.cause == "no_push_from_here"
+
+
+def test_a_polishing_plan_that_is_not_finite_ends_as_a_numerical_error_not_a_success(settings):
+    executor, job = after_a_push(settings, TURNED, TURNED_CUBE, TURNED_BETA)
+    assert executor.accept(job, Failure(Ending.NUMERICAL_ERROR, "the plan is not finite"), 1.0) is None
+    assert executor.ending is Ending.NUMERICAL_ERROR

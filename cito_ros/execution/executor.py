@@ -309,7 +309,9 @@ class Executor:
             if self.phase not in expected:
                 return None
             if isinstance(outcome, Failure):
-                if job.kind == "plan" and self._polished(job, outcome.message):
+                # a plan that is not finite ends as one, polishing or not
+                if job.kind == "plan" and outcome.ending is not Ending.NUMERICAL_ERROR and \
+                        self._polished(job, outcome.message):
                     return None
                 ending, cause = outcome.ending, None
                 if ending is Ending.INVALID_REQUEST and self.pushes:  # the goal was posed; no next push reaches it
