@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from cito_ros.execution.estimator import StateEstimator, tipped_over
-from cito_ros.execution.goal import ExecuteGoal, cube_in, moved_beyond, polishing, predict
+from cito_ros.execution.goal import ExecuteGoal, cube_in, moved_beyond, polishes, polishing, predict
 from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import push_model
 from cito_ros.execution.policy import Policy, Retreat, robot_torques
@@ -227,9 +227,8 @@ class Executor:
     def _succeeded(self, position_m: float, orientation_rad: float, after: str, polish: bool = True) -> bool:
         """Whether the camera sees the cube at rest within executor.done_fraction of the tolerances, and with
         `polish` of executor.polish_orientation_rad too (polishing): then it ends."""
-        executor = self.settings.executor
-        if tolerance_ratio(position_m, orientation_rad, self.settings.task) < executor.done_fraction and not (
-                polish and polishing(self.settings, position_m, orientation_rad)):
+        if tolerance_ratio(position_m, orientation_rad, self.settings.task) < self.settings.executor.done_fraction \
+                and not (polish and polishes(self.settings, position_m, orientation_rad)):
             self._end(Ending.SUCCEEDED, f"the cube is {100 * position_m:.2f} cm and {orientation_rad:.3f} rad from "
                                         f"the goal after {self.pushes} push(es){after}", None)
             return True
@@ -352,7 +351,7 @@ class Executor:
         """Where the job's push was to polish the cube's yaw (polishing) and none is made, the execution ends a
         success, the arm held where it is."""
         position, orientation = self.goal.errors(*job.object_pose)
-        if polishing(self.settings, position, orientation) is None:
+        if not polishes(self.settings, position, orientation):
             return False
         self._end(Ending.SUCCEEDED, f"the cube is {100 * position:.2f} cm and {orientation:.3f} rad from the goal "
                                     f"after {self.pushes} push(es), no push turning it within "

@@ -38,16 +38,22 @@ def moved_beyond(settings: Settings, pose, other_pose) -> bool:
     return tolerance_ratio(*pose_errors(*pose, *other_pose), settings.task) > settings.executor.moved_fraction
 
 
-def polishing(settings: Settings, position_m: float, orientation_rad: float) -> Settings | None:
-    """The settings a next push is planned with from a cube at rest this far from the goal (m, rad) where that is
-    within executor.done_fraction of the task's tolerances but turned by more than that of
-    executor.polish_orientation_rad: the task's with that as its yaw tolerance. None where the cube is not so."""
+def polishes(settings: Settings, position_m: float, orientation_rad: float) -> bool:
+    """Whether a cube at rest this far from the goal (m, rad) is within executor.done_fraction of the task's
+    tolerances but turned by more than that of executor.polish_orientation_rad: its next push is then planned to
+    that yaw tolerance (polishing)."""
     executor = settings.executor
-    if executor.polish_orientation_rad <= 0.0 or orientation_rad < executor.done_fraction * \
-            executor.polish_orientation_rad or \
-            tolerance_ratio(position_m, orientation_rad, settings.task) >= executor.done_fraction:
+    return executor.polish_orientation_rad > 0.0 and \
+        orientation_rad >= executor.done_fraction * executor.polish_orientation_rad and \
+        tolerance_ratio(position_m, orientation_rad, settings.task) < executor.done_fraction
+
+
+def polishing(settings: Settings, position_m: float, orientation_rad: float) -> Settings | None:
+    """The settings a next push from a cube at rest this far from the goal is planned and judged with where it
+    polishes: the task's with executor.polish_orientation_rad as its yaw tolerance. None where it does not."""
+    if not polishes(settings, position_m, orientation_rad):
         return None
-    return settings.with_overrides({"task.success_orientation_error_rad": executor.polish_orientation_rad})
+    return settings.with_overrides({"task.success_orientation_error_rad": settings.executor.polish_orientation_rad})
 
 
 def cube_in(scene, state: np.ndarray) -> tuple[np.ndarray, float]:
