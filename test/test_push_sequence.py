@@ -1,7 +1,7 @@
 """Pushes in sequence: where the executor's push to the goal would not land alike in its worlds, and pushes are left,
 it pushes to a waypoint partway first; where the goal is outside the near face's friction cone, across on a side face
-first; where no near-face push would bring the cube closer, on a side face to the goal
-(cito_ros.execution.planning.compute). Real MuJoCo, the real planner."""
+first; where no near-face push would bring the cube closer, on a side face to the goal, or else on the near face as
+planned for the cube in the model alone (cito_ros.execution.planning.compute). Real MuJoCo, the real planner."""
 import dataclasses
 import math
 import time
@@ -52,6 +52,13 @@ EDGE_BETA = 6.52
 # push as measured, which identify reads); the execution had ended there with "no closer push"
 STUCK = ExecuteGoal((1.1070706745527696, 0.039845421473472586), -0.2883252573924895)
 STUCK_DATA = Path(__file__).parent / "data" / "beside_after_a_push.npz"
+
+# seed 2's goal 16 of `closed-loop --n 20`, its cube where two pushes left it in the friction x1.5, mass x2 world
+# (c6931dc): 2.6 cm beside the goal and 0.13 rad off, the arm back at its start; the push sturdy in the executor's
+# worlds never touches it there, nor can the plate reach a side face, and the execution had ended with "no closer push"
+NO_STURDY = ExecuteGoal((1.1048, -0.0784), 0.3275)
+NO_STURDY_CUBE = ((1.1091, -0.1038), 0.4553)
+NO_STURDY_BETA = 4.0385
 
 
 def at_planners_horizon(settings):
@@ -215,8 +222,23 @@ def test_a_cube_beside_the_goal_that_no_near_face_push_brings_closer_is_pushed_t
     job = Job("plan", 0.0, None, data["q"], cube, float(data["time_left_s"]), None, math.nan, int(data["pushes_left"]),
               (Observed(data["start_state"], data["joints"], data["poses"]),))
     scene = push_model(settings, STUCK).scene
-    near = compute(settings.with_overrides({"executor.side_when_stuck": False}), STUCK, job)
+    near = compute(settings.with_overrides({"executor.side_when_stuck": False, "executor.nominal_when_stuck": False}),
+                   STUCK, job)
     assert near.face == 0 and not predict(settings, scene, STUCK, cube, near).closer  # the premise
     side = compute(settings, STUCK, job)
     assert side.face != 0 and side.sturdy and side.target == (STUCK.target_position_m, STUCK.target_yaw_rad)
     assert predict(settings, scene, STUCK, cube, side).closer
+
+
+def test_a_cube_that_no_push_sturdy_in_the_worlds_brings_closer_gets_the_push_planned_for_it_alone(settings):
+    """After pushes (pushes are left), from a cube beside the goal that the near face's push sturdy in the executor's
+    worlds would leave where it is, and whose side faces the plate does not reach: the near face's push planned in
+    the model alone, which the model has bring the cube closer (the executor ended there before)."""
+    job = Job("plan", 0.0, None, start_configuration(NO_STURDY_BETA), NO_STURDY_CUBE, 30.0, None, math.nan, 2)
+    scene = push_model(settings, NO_STURDY).scene
+    sturdy = compute(settings.with_overrides({"executor.nominal_when_stuck": False}), NO_STURDY, job)
+    assert not predict(settings, scene, NO_STURDY, NO_STURDY_CUBE, sturdy).closer  # the premise
+    pushed = compute(settings, NO_STURDY, job)
+    assert pushed.face == 0 and not pushed.sturdy and pushed.target == (NO_STURDY.target_position_m,
+                                                                        NO_STURDY.target_yaw_rad)
+    assert predict(settings, scene, NO_STURDY, NO_STURDY_CUBE, pushed).closer

@@ -62,7 +62,8 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     had been made, and the execution ended with no closer push where the waypoint's moved it closer). After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it; where that push would not bring the cube closer (the executor ends there), the side face's push to the goal
-    is planned (executor.side_when_stuck) and made where it is sturdy and does. A cube at rest within the
+    is planned (executor.side_when_stuck) and made where it is sturdy and does, and else the near face's planned for
+    the identified cube alone (executor.nominal_when_stuck), made where it does there. A cube at rest within the
     tolerances but turned more than executor.polish_orientation_rad allows (polishing) gets one plan to the goal with
     that yaw tolerance, within executor.plan_iterations, returned only where it is sturdy to it (else a Failure: the
     executor ends a success). A push's plans share one executor.plan_time_limit_s of wall clock, each given what the
@@ -105,13 +106,20 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found is sturdy to within "
                                                  f"{executor.polish_orientation_rad:g} rad")
     policy = _policy(settings, goal, job, request, result, scales)
-    if executor.side_when_stuck and not polish and job.pushes_left < executor.max_pushes - 1 and \
-            not predict(settings, model.scene, goal, job.object_pose, policy).closer:
-        # no near-face push brings the cube closer (one beside the goal and a little past it: pushed further along,
-        # it goes further past): the side face's push to the goal, where it is sturdy and does
+    if polish or job.pushes_left >= executor.max_pushes - 1 or \
+            predict(settings, model.scene, goal, job.object_pose, policy).closer:
+        return policy
+    # no near-face push sturdy in the worlds brings the cube closer, and the executor would end there
+    if executor.side_when_stuck:  # one beside the goal and a little past it: pushed further along, it goes further past
         side = _side_push(settings, goal, left(), scales, worlds, goal)
         if side is not None and predict(settings, model.scene, goal, job.object_pose, side).closer:
             return side
+    if executor.nominal_when_stuck:
+        request, result = _plan_to(settings, goal, left(), 1.0, executor.plan_iterations, scales, NOMINAL)
+        nominal = _policy(settings, goal, job, request, result, scales)
+        if result.status is not Status.NUMERICAL_ERROR and \
+                predict(settings, model.scene, goal, job.object_pose, nominal).closer:
+            return nominal
     return policy
 
 
@@ -150,6 +158,9 @@ def _knotted(settings: Settings, control_period_s: float) -> Settings:
     return settings if math.isclose(control_period_s, settings.control_period_s) else \
         settings.with_overrides({"control_period_s": control_period_s})
 
+
+# the identified cube's world alone (the plan's model: no other worlds tracked), for executor.nominal_when_stuck
+NOMINAL = [[1.0], [1.0]]
 
 # the side face's starts alone: where they are not sturdy, the push is planned as any other
 SIDE_ONLY = {"stages.scripted.side_faces.enabled": True, "stages.scripted.enabled": False, "stages.starts": []}

@@ -102,6 +102,10 @@ class ExecutorSettings:
     side_when_stuck: bool = setting(
         "after a push, where no push on the near face would bring the cube closer (the executor would end there), a "
         "push to the goal on the side face it needs is planned, and made where it is sturdy and brings it closer")
+    nominal_when_stuck: bool = setting(
+        "after a push, where neither the near face's push sturdy in the worlds nor side_when_stuck's brings the cube "
+        "closer, the near face's push planned in the identified cube's world alone (the mass taken as the model's) "
+        "is made where it brings it closer there: the push sturdy in the worlds is the one that never touches it")
     waypoint_world_ratio: float = setting(
         "side_first_rad's push to its waypoint is made where its worst world ends within this many times the "
         "tolerances of the waypoint (1: sturdy to it): the pushes after it correct the rest", minimum=1.0)
