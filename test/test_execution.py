@@ -267,44 +267,6 @@ def ending_at(executor: Executor, policy: Policy, position_m, yaw_rad: float, st
     return dataclasses.replace(policy, reference=reference)
 
 
-def test_a_next_push_that_would_turn_a_cube_at_the_place_to_the_goal_is_made(settings):
-    """The cube rests at the goal's place but 0.25 rad from its yaw: a next push predicted to leave it 1 cm off
-    and 0.05 rad from the yaw brings it closer (both errors against their tolerances) and is made; one predicted
-    to leave it where it is, 0.5 cm off and 0.3 rad from the yaw, or turned by only 0.02 rad (closer, but by no
-    more than the camera's noise moves a cube that never was touched) is not."""
-    for (off_m, yaw_error_rad), made in (((0.01, 0.05), True), ((0.0, 0.25), False), ((0.005, 0.3), False),
-                                         ((0.0, 0.23), False)):
-        (x, y), yaw = settings.scene.object.position_m, settings.scene.object.yaw_rad  # where the cube rests
-        goal = dataclasses.replace(GOAL, target_position_m=(x, y), target_yaw_rad=yaw + 0.25)
-        turned = next_push_made(settings, goal, (x + off_m, y), goal.target_yaw_rad - yaw_error_rad, made)
-        assert turned.phase is (Phase.PLANNING if made else Phase.DONE)
-
-
-def test_a_next_push_that_would_bring_the_cube_within_the_tolerances_is_made_however_little_it_moves_it(settings):
-    """The cube rests 2.1 cm short of the goal: a next push predicted to leave it 1.75 cm off lands it within the
-    tolerances and is made, though it moves it only 0.35 cm (less than executor.moved_fraction of them, a sturdy
-    such push had not been made: the execution missed); one predicted to leave it 2.0 cm off, at the tolerance,
-    moving it 0.1 cm, is not (closer, but by no more than the camera's noise moves a cube that never was touched)."""
-    for moved_m, made in ((0.0035, True), (0.001, False)):
-        (x, y), yaw = settings.scene.object.position_m, settings.scene.object.yaw_rad  # where the cube rests
-        next_push_made(settings, dataclasses.replace(GOAL, target_position_m=(x + 0.021, y), target_yaw_rad=yaw),
-                       (x + moved_m, y), yaw, made)
-
-
-def next_push_made(settings, goal: ExecuteGoal, position_m, yaw_rad: float, made: bool) -> Executor:
-    """An execution after a first push that left the cube where the scene has it at rest, given a next push the
-    model predicts to leave it at position_m, yaw_rad: checked to make that push or not as `made` says."""
-    executor, world = started(settings, goal=goal)
-    executor.pushes = 1
-    job = executor.job(world.time_s)
-    assert job is not None and job.kind == "plan"
-    policy = Policy(world.time_s, settings.control_period_s, world.timestep_s, np.zeros((4, 7)),
-                    np.zeros((4, 7, len(job.state))), np.repeat(job.state[None], 5, axis=0))
-    assert (executor.accept(job, ending_at(executor, policy, position_m, yaw_rad), 0.1) is not None) is made, \
-        executor.message
-    return executor
-
-
 def judged_once_drawn_back(settings, strict, tolerance_m: Callable[[float], float]) -> Executor:
     """An execution whose first push missed (retreating), its next push planned during the retreat, and the cube
     judged once the arm is back against tolerance_m(its position error after the push) and a yaw tolerance it
