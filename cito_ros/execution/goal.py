@@ -32,10 +32,13 @@ def pose_errors(position_m, yaw_rad: float, other_position_m, other_yaw_rad: flo
         abs(cube_turn_rad(other_yaw_rad, yaw_rad))
 
 
-def moved_beyond(settings: Settings, pose, other_pose) -> bool:
+def moved_beyond(settings: Settings, pose, other_pose, predicted: bool = False) -> bool:
     """Whether two poses of the cube ((x, y), yaw) lie further apart than executor.moved_fraction of the task's
-    tolerances (the larger of position and yaw): the cube has moved, or a push moves it."""
-    return tolerance_ratio(*pose_errors(*pose, *other_pose), settings.task) > settings.executor.moved_fraction
+    tolerances (the larger of position and yaw): the cube has moved as the camera saw it; or, `predicted` (two poses
+    of the model's, without the camera's noise), than executor.predicted_moved_fraction: a push moves it."""
+    executor = settings.executor
+    return tolerance_ratio(*pose_errors(*pose, *other_pose), settings.task) > \
+        (executor.predicted_moved_fraction if predicted else executor.moved_fraction)
 
 
 def polishes(settings: Settings, position_m: float, orientation_rad: float) -> bool:
@@ -67,9 +70,9 @@ class Prediction:
     """What the model predicts of a next push from a cube at rest: its errors at the push's end against the goal and
     how far it moves the cube (each position in m, yaw in rad), and whether that brings the cube closer: the larger
     of the two errors against its tolerance lower than now (a cube at the place but turned is brought closer by a
-    push that turns it), and the cube moved by more than executor.moved_fraction of the tolerances (a plan that never
-    touches a cube within its waypoint's tolerances is "sturdy" there: five such ran out the time) or brought within
-    executor.done_fraction of them."""
+    push that turns it), and the cube moved by more than executor.predicted_moved_fraction of the tolerances (a plan
+    that never touches a cube within its waypoint's tolerances is "sturdy" there: five such ran out the time) or
+    brought within executor.done_fraction of them."""
 
     predicted: tuple[float, float]
     moved: tuple[float, float]
@@ -85,4 +88,4 @@ def predict(settings: Settings, scene, goal: ExecuteGoal, object_pose, policy: P
     # a push that ends the cube within done_fraction of the tolerances from outside them touches it however little
     # it moves it (a sturdy one 2.07 cm off to 1.73 cm, moving it 0.38 cm, was not made: the execution missed)
     lands = ratio < settings.executor.done_fraction <= now
-    return Prediction(predicted, moved, ratio < now and (lands or moved_beyond(settings, start, cube)))
+    return Prediction(predicted, moved, ratio < now and (lands or moved_beyond(settings, start, cube, predicted=True)))

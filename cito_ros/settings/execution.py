@@ -92,6 +92,10 @@ class ExecutorSettings:
         "a cube at rest within done_fraction of the task's tolerances but turned by more than done_fraction of this "
         "from the goal is pushed again, a push planned with this as the yaw tolerance and made only where it is "
         "sturdy to it; where there is none the execution ends a success (0: never; rad)", minimum=0.0)
+    polish_within_tolerances: bool = setting(
+        "where no polishing push is sturdy to polish_orientation_rad, one that the model has end the cube within "
+        "done_fraction of it, and that keeps it within the task's tolerances in every world of world_*_scales "
+        "(tracked by the servo), is made: it turns the cube further in the model and keeps the success elsewhere")
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
@@ -139,8 +143,11 @@ class ExecutorSettings:
     world_mass_scales: tuple[float, ...] = setting("and tracking.world_mass_scales for them", positive=True)
     moved_fraction: float = setting("a push planned during the retreat is planned again from where the cube is if "
                                     "it has moved since by more than this fraction of the task's tolerances (the "
-                                    "larger of position and yaw); and a next push the model predicts moves it by "
-                                    "no more than this is not made (a plan that never touches it)", positive=True)
+                                    "larger of position and yaw)", positive=True)
+    predicted_moved_fraction: float = setting(
+        "a next push the model predicts moves the cube by no more than this fraction of the task's tolerances is "
+        "not made: lower than moved_fraction, the retreat's, which is judged on the camera's noisy poses",
+        positive=True)
     identify_friction_scales: tuple[float, ...] = setting(
         "after a push, the cube's frictions among these scales of the model's whose simulation, the arm driven "
         "along its measured path, moves the cube about as the camera saw it (every push so far) are the possible "
