@@ -15,8 +15,8 @@ come to rest; then the push is judged by the camera: at the goal, done; else, wh
 way it came), and a new push is planned from there meanwhile, made once the arm is there and only if the model
 predicts it brings the cube closer (both errors against their tolerances) and moves it by more than
 executor.predicted_moved_fraction of them), `done`. A cube at rest within the tolerances but turned by more than
-executor.polish_orientation_rad allows is pushed again, where a push sturdy to that yaw is found (goal.polishing),
-or one safe to the task's tolerances (executor.polish_within_tolerances); where none is, it is done, a success. An execution begun with the arm against the cube (where the last one
+executor.polish_orientation_rad allows is pushed again, where a push sturdy to that yaw is found (goal.polishing);
+where none is, it is done, a success. An execution begun with the arm against the cube (where the last one
 ended or was cancelled) begins `retreating` to the start pose of settings.beta. Measurements older than
 executor.stale_after_s, a cancel, the time limit, a cube seen tipped past its edge or a push that cannot be planned
 end the execution with the arm held where it is.

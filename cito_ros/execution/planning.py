@@ -65,8 +65,8 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     is planned (executor.side_when_stuck) and made where it is sturdy and does, and else the near face's planned for
     the identified cube alone (executor.nominal_when_stuck), made where it does there. A cube at rest within the
     tolerances but turned more than executor.polish_orientation_rad allows (polishing) gets one plan to the goal with
-    that yaw tolerance, within executor.plan_iterations, returned where it is sturdy to it or polishes safely
-    (_polishes_safely; else a Failure: the executor ends a success). A push's plans share one executor.plan_time_limit_s of wall clock, each given what the
+    that yaw tolerance, within executor.plan_iterations, returned only where it is sturdy to it (else a Failure: the
+    executor ends a success). A push's plans share one executor.plan_time_limit_s of wall clock, each given what the
     ones before it left (at least a second)."""
     if job.kind == "replan":  # in the model the running push was planned in: its knots, its cube
         return push_model(_knotted(settings, job.running.control_period_s), goal, job.running.object_scales).replan(
@@ -102,10 +102,10 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.INVALID_REQUEST, f"no push can be planned from here: {error}")
     if result.status is Status.NUMERICAL_ERROR:
         return Failure(Ending.NUMERICAL_ERROR, "the plan is not finite or raised MuJoCo warnings")
-    policy = _policy(settings, goal, job, request, result, scales)
-    if polish and not result.sturdy and not _polishes_safely(polish, model.scene, goal, job, policy):
+    if polish and not result.sturdy:
         return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found is sturdy to within "
                                                  f"{executor.polish_orientation_rad:g} rad")
+    policy = _policy(settings, goal, job, request, result, scales)
     if polish or job.pushes_left >= executor.max_pushes - 1 or \
             predict(settings, model.scene, goal, job.object_pose, policy).closer:
         return policy
@@ -121,16 +121,6 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
                 predict(settings, model.scene, goal, job.object_pose, nominal).closer:
             return nominal
     return policy
-
-
-def _polishes_safely(polish: Settings, scene, goal: ExecuteGoal, job: Job, policy: Policy) -> bool:
-    """Whether a polishing push not sturdy to the polish yaw is made all the same (executor.polish_within_tolerances):
-    the model has it end the cube within done_fraction of the tolerances of `polish` (the settings polishing gave),
-    and its worst world (policy.worst_world, against the task's own tolerances) keeps the cube within them."""
-    executor = polish.executor
-    seen = predict(polish, scene, goal, job.object_pose, policy)
-    return executor.polish_within_tolerances and policy.worst_world < 1.0 and \
-        tolerance_ratio(*seen.predicted, polish.task) < executor.done_fraction
 
 
 def _cube_moved(result: PlanResult) -> tuple[tuple[np.ndarray, float], tuple[np.ndarray, float]]:

@@ -92,10 +92,6 @@ class ExecutorSettings:
         "a cube at rest within done_fraction of the task's tolerances but turned by more than done_fraction of this "
         "from the goal is pushed again, a push planned with this as the yaw tolerance and made only where it is "
         "sturdy to it; where there is none the execution ends a success (0: never; rad)", minimum=0.0)
-    polish_within_tolerances: bool = setting(
-        "where no polishing push is sturdy to polish_orientation_rad, one that the model has end the cube within "
-        "done_fraction of it, and that keeps it within the task's tolerances in every world of world_*_scales "
-        "(tracked by the servo), is made: it turns the cube further in the model and keeps the success elsewhere")
     settle_s: float = setting("after a push the arm holds at least this long before the push is judged (s)",
                               minimum=0.0)
     max_pushes: int = setting("pushes per execution: the first, and new ones from where the cube rests", minimum=1)
