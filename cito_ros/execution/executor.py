@@ -213,7 +213,7 @@ class Executor:
         """Whether the cube has left where a push was planned for it (moved_beyond): the rest window's mean against
         the plan's start, which is one too."""
         return moved_beyond(self.settings, self.estimator.resting_pose(),
-                            cube_in(self.model.scene, policy.reference[0]))
+                            cube_in(self.model.scene, policy.reference[0]), self.settings.executor.moved_fraction)
 
     def _off_path_m(self) -> float:
         """How far the cube's last measured position is from where the running push's reference has it at that

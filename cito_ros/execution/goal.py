@@ -32,13 +32,11 @@ def pose_errors(position_m, yaw_rad: float, other_position_m, other_yaw_rad: flo
         abs(cube_turn_rad(other_yaw_rad, yaw_rad))
 
 
-def moved_beyond(settings: Settings, pose, other_pose, predicted: bool = False) -> bool:
-    """Whether two poses of the cube ((x, y), yaw) lie further apart than executor.moved_fraction of the task's
-    tolerances (the larger of position and yaw): the cube has moved as the camera saw it; or, `predicted` (two poses
-    of the model's, without the camera's noise), than executor.predicted_moved_fraction: a push moves it."""
-    executor = settings.executor
-    return tolerance_ratio(*pose_errors(*pose, *other_pose), settings.task) > \
-        (executor.predicted_moved_fraction if predicted else executor.moved_fraction)
+def moved_beyond(settings: Settings, pose, other_pose, fraction: float) -> bool:
+    """Whether two poses of the cube ((x, y), yaw) lie further apart than `fraction` of the task's tolerances (the
+    larger of position and yaw): executor.moved_fraction for poses the camera saw (the cube has moved),
+    executor.predicted_moved_fraction for the model's, which carry no camera noise (a push moves it)."""
+    return tolerance_ratio(*pose_errors(*pose, *other_pose), settings.task) > fraction
 
 
 def polishes(settings: Settings, position_m: float, orientation_rad: float) -> bool:
@@ -88,4 +86,5 @@ def predict(settings: Settings, scene, goal: ExecuteGoal, object_pose, policy: P
     # a push that ends the cube within done_fraction of the tolerances from outside them touches it however little
     # it moves it (a sturdy one 2.07 cm off to 1.73 cm, moving it 0.38 cm, was not made: the execution missed)
     lands = ratio < settings.executor.done_fraction <= now
-    return Prediction(predicted, moved, ratio < now and (lands or moved_beyond(settings, start, cube, predicted=True)))
+    moves = moved_beyond(settings, start, cube, settings.executor.predicted_moved_fraction)
+    return Prediction(predicted, moved, ratio < now and (lands or moves))

@@ -132,7 +132,7 @@ def _cube_moved(result: PlanResult) -> tuple[tuple[np.ndarray, float], tuple[np.
 def _moves(settings: Settings, result: PlanResult) -> bool:
     """Whether a plan moves the cube (moved_beyond, as the executor asks of a next push: a plan sturdy to a
     waypoint whose tolerances already hold the cube never touches it)."""
-    return moved_beyond(settings, *_cube_moved(result), predicted=True)
+    return moved_beyond(settings, *_cube_moved(result), settings.executor.predicted_moved_fraction)
 
 
 def _predicted(settings: Settings, goal: ExecuteGoal, result: PlanResult) -> tuple[bool, float]:
