@@ -221,9 +221,11 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
     assert np.all(np.abs(retreat.at(0.5 * (retreat.start_s + retreat.end_s))[1]) <= limit + 1e-9)
     job = executor.job(world.time_s)  # the next push, planned as the arm retreats: from where it will be
     assert job is not None and job.kind == "plan" and np.array_equal(job.q, home)
+    assert executor.policy.target[0] == GOAL.target_position_m and not job.direct_missed  # the first went to the goal
     closer = ending_at(executor, executor.policy, executor.goal.target_position_m, executor.goal.target_yaw_rad,
                        job.state)
-    next_push = executor.accept(job, dataclasses.replace(closer, start_s=world.time_s), 0.5)
+    waypoint = ((1.05, 0.02), 0.05)  # the next goes to a waypoint: its plan to the goal was not sturdy
+    next_push = executor.accept(job, dataclasses.replace(closer, start_s=world.time_s, target=waypoint), 0.5)
     assert next_push.effective_s == retreat.end_s and executor.pushes == 1  # counted once it is made
     while executor.phase is Phase.RETREATING:
         assert executor.policy is not next_push.policy
@@ -231,7 +233,7 @@ def test_a_push_that_missed_takes_the_arm_back_to_its_start_without_moving_the_c
         deliver(executor, world)
     executor.command(world.time_s)
     assert executor.policy is next_push.policy and world.time_s >= retreat.end_s  # made once the arm is back
-    assert executor.pushes == 2
+    assert executor.pushes == 2 and executor.job(world.time_s).direct_missed  # the plans after it know
     assert np.abs(world.joints().q - home).max() < 0.05  # back where it started (the servo's error)
     assert np.linalg.norm(world.true_object_pose()[0][:2] - cube_before[:2]) < 0.003  # the cube not dragged along
     # the same, with a next push that would leave the cube no closer

@@ -60,6 +60,12 @@ NO_STURDY = ExecuteGoal((1.1048, -0.0784), 0.3275)
 NO_STURDY_CUBE = ((1.1091, -0.1038), 0.4553)
 NO_STURDY_BETA = 4.0385
 
+# seed 3's goal 2 of `closed-loop --n 20`, its cube where the first world puts it: 6.8 cm ahead, turned by 0.08 rad;
+# the push there is sturdy at once
+AHEAD = ExecuteGoal((1.0734, -0.0111), 0.0167)
+AHEAD_CUBE = ((1.005, -0.015), 0.1)
+AHEAD_BETA = 6.204
+
 
 def at_planners_horizon(settings):
     """The executor's pushes at the planner's horizon_s, where the goals of the waypoint tests were found: at
@@ -242,3 +248,17 @@ def test_a_cube_that_no_push_sturdy_in_the_worlds_brings_closer_gets_the_push_pl
     assert pushed.face == 0 and not pushed.sturdy and pushed.target == (NO_STURDY.target_position_m,
                                                                         NO_STURDY.target_yaw_rad)
     assert predict(settings, scene, NO_STURDY, NO_STURDY_CUBE, pushed).closer
+
+
+def test_after_a_push_to_a_waypoint_the_next_goes_to_its_own_waypoint_where_that_is_sturdy(settings):
+    """Once a push has gone to a waypoint, its plan to the goal not sturdy (Job.direct_missed), the next push is
+    planned to the waypoint first, and made there where that plan is sturdy and moves the cube, even where the plan to
+    the goal would have been sturdy (executor.waypoint_first_after_miss)."""
+    job = Job("plan", 0.0, None, start_configuration(AHEAD_BETA), AHEAD_CUBE, 30.0, None, math.nan, 2)
+    direct = compute(settings, AHEAD, job)
+    assert direct.sturdy and direct.target[0] == AHEAD.target_position_m  # the premise
+    after = compute(settings, AHEAD, dataclasses.replace(job, direct_missed=True))
+    start, goal = np.array(AHEAD_CUBE[0]), np.array(AHEAD.target_position_m)
+    assert after.sturdy and np.allclose(after.target[0], start + settings.executor.waypoint_fraction * (goal - start))
+    assert compute(settings.with_overrides({"executor.waypoint_first_after_miss": False}), AHEAD,
+                   dataclasses.replace(job, direct_missed=True)).target[0] == AHEAD.target_position_m

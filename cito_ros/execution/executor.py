@@ -98,6 +98,7 @@ class Executor:
         self.pushes = 0
         self.pushes_cut = 0                    # pushes cut short with the cube off their path (executor.off_path_m)
         self.sturdy_pushes: list[bool] = []    # per push made: whether its plan was sturdy (Policy.sturdy)
+        self.direct_missed = False             # a push made went to a waypoint (Job.direct_missed)
         self.stale_plans = 0                   # pushes planned ahead, dropped: the cube had moved before they began
         self.observed: list[Observed] = []     # every push made, as measured until the cube was judged at rest
         self._recording: tuple[np.ndarray, list, list] | None = None  # the push's: start state, joints, poses
@@ -183,6 +184,8 @@ class Executor:
                 self._recording = (work.policy.reference[0], [], [])
                 self.pushes += 1
                 self.sturdy_pushes.append(work.policy.sturdy)
+                self.direct_missed |= work.policy.face == 0 and \
+                    not np.array_equal(work.policy.target[0], self.goal.target_position_m)  # planning.compute
         if self.phase is Phase.PUSHING and self._off_path_m() > self.settings.executor.off_path_m:
             self.pushes_cut += 1
             self._push_end_s = now_s
@@ -295,7 +298,7 @@ class Executor:
             return Job("replan" if replan else "plan", now_s, state, (self._home_q if ahead else self._joints.q).copy(),
                        self.object_pose(now_s) if replan else self.estimator.resting_pose(),
                        self.time_limit_s - (now_s - self.started_s), self.policy, self._push_end_s,
-                       executor.max_pushes - self.pushes - 1, tuple(self.observed))
+                       executor.max_pushes - self.pushes - 1, tuple(self.observed), self.direct_missed)
 
     def accept(self, job: Job, outcome: Policy | Failure | None, elapsed_s: float) -> Work | None:
         """Take a job's outcome, computed in elapsed_s (on the robot's clock, from job.now_s): a plan that takes
@@ -388,6 +391,7 @@ class Job:
     push_end_s: float                        # replan: where the push ends
     pushes_left: int = 0                     # plan: the pushes the executor may make after this one
     observed: tuple[Observed, ...] = ()      # plan: the pushes so far, as measured (identify)
+    direct_missed: bool = False              # plan: a push so far went to a waypoint, its plan to the goal not sturdy
 
 
 @dataclass(frozen=True)

@@ -112,6 +112,9 @@ class ExecutorSettings:
     waypoint_fraction: float = setting("a push whose plan to the goal is not sturdy (PlanResult.sturdy), with pushes "
                                        "left after it, is planned again to this fraction of the way there, and that "
                                        "plan taken if it is sturdy (0: never)", minimum=0.0)
+    waypoint_first_after_miss: bool = setting(
+        "once a push has gone to a waypoint (its plan to the goal not sturdy), each next push with pushes left after "
+        "it is planned to the waypoint first, and to the goal only where that plan is not made")
     direct_iterations: int = setting("the planner's iterations for that plan to the goal, where a waypoint may "
                                      "follow (with none, plan_iterations)", minimum=1)
     off_path_m: float = setting("a push is cut short, the arm held where it is, once the measured cube is this far "
