@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cito_ros.execution.executor import Job
+from cito_ros.execution.executor import Ending, Failure, Job
 from cito_ros.execution.goal import ExecuteGoal, predict
 from cito_ros.execution.identify import Observed
 from cito_ros.execution.mpc import push_model
@@ -95,6 +95,19 @@ def test_a_push_not_sturdy_to_the_goal_goes_sturdy_to_a_waypoint_partway_while_p
     assert np.linalg.norm(position - goal) > settings.task.success_position_error_m
     waypoint_yaw = CUBE[1] + fraction * (GOAL.target_yaw_rad - CUBE[1])
     assert abs(yaw - waypoint_yaw) < settings.task.success_orientation_error_rad
+
+
+def test_a_push_not_sturdy_is_made_only_where_its_worst_world_stays_within_the_ratio_else_the_arm_is_held(settings):
+    """A push not sturdy to the goal, none left after it, is made: its worst check world ends within
+    executor.max_world_ratio (3) times the tolerances. Held to 1 (sturdy alone) the same plan is not made, and the
+    execution ends with a reason: on the any distribution the pushes made beyond 3 times threw the cube."""
+    settings = at_planners_horizon(settings)
+    made, _, _ = first_push(settings, pushes_left=0)
+    assert not made.sturdy, "the premise: this goal's push, with no push left after it, is not sturdy"
+    job = Job("plan", 0.0, None, start_configuration(BETA), CUBE, 30.0, None, math.nan, 0)
+    held = compute(settings.with_overrides({"executor.max_world_ratio": 1.0}), GOAL, job)
+    assert isinstance(held, Failure) and held.ending is Ending.INVALID_REQUEST
+    assert "within 1 times the tolerances in every check world" in held.message
 
 
 def test_a_pushs_plans_share_one_time_limit_each_given_what_the_ones_before_left(settings, monkeypatch):

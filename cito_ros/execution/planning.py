@@ -62,7 +62,9 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     (on seed 3 the plans to the goal after one that missed were sturdy in 4 of 26, the 22 others taking 5-15 s
     each: docs/results.md). Where neither is so, the one the model has nearer the goal is made, within the arm's limits
     first (the plan to a goal at the arm's reach that goes beyond the joints' range and never touches the cube
-    had been made, and the execution ended with no closer push where the waypoint's moved it closer). After a
+    had been made, and the execution ended with no closer push where the waypoint's moved it closer), and only where
+    its worst check world ends within executor.max_world_ratio times the tolerances, else a Failure (such pushes
+    tipped the cube or threw it off the table on the any distribution: docs/results.md). After a
     push, the cube's friction is identified from what the camera saw of it (identify), and the next is planned for
     it; where that push would not bring the cube closer (the executor ends there), the side face's push to the goal
     is planned (executor.side_when_stuck) and made where it is sturdy and does, and else the near face's planned for
@@ -110,6 +112,10 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     if polish and not result.sturdy:
         return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found is sturdy to within "
                                                  f"{executor.polish_orientation_rad:g} rad")
+    if result.worst_world > executor.max_world_ratio:
+        return Failure(Ending.INVALID_REQUEST, f"no push found keeps the cube within {executor.max_world_ratio:g} "
+                                               f"times the tolerances in every check world (the push the model has "
+                                               f"nearest the goal: {result.worst_world:.3g} times)")
     policy = _policy(settings, goal, job, request, result, scales)
     if polish or job.pushes_left >= executor.max_pushes - 1 or \
             predict(settings, model.scene, goal, job.object_pose, policy).closer:
@@ -146,11 +152,13 @@ def _moves(settings: Settings, result: PlanResult) -> bool:
     return moved_beyond(settings, *_cube_moved(result), settings.executor.predicted_moved_fraction)
 
 
-def _predicted(settings: Settings, goal: ExecuteGoal, result: PlanResult) -> tuple[bool, float]:
-    """A plan's standing against the goal in the model, lower better: beyond the arm's limits last, then the
-    tolerance ratio of where it leaves the cube."""
+def _predicted(settings: Settings, goal: ExecuteGoal, result: PlanResult) -> tuple[bool, bool, float]:
+    """A plan's standing against the goal, lower better: one whose worst check world ends beyond
+    executor.max_world_ratio last, then one beyond the arm's limits, then the model's tolerance ratio of where it
+    leaves the cube."""
     metrics, (_, end) = result.metrics, _cube_moved(result)
-    return not within_limits(metrics.max_joint_speed_ratio, metrics.joint_range_excess_rad), \
+    return result.worst_world > settings.executor.max_world_ratio, \
+        not within_limits(metrics.max_joint_speed_ratio, metrics.joint_range_excess_rad), \
         tolerance_ratio(*goal.errors(*end), settings.task)
 
 

@@ -109,6 +109,10 @@ class ExecutorSettings:
     waypoint_world_ratio: float = setting(
         "side_first_rad's push to its waypoint is made where its worst world ends within this many times the "
         "tolerances of the waypoint (1: sturdy to it): the pushes after it correct the rest", minimum=1.0)
+    max_world_ratio: float = setting(
+        "a near-face push that is not sturdy is made only where its worst check world ends the cube within this many "
+        "times the tolerances of its target; where neither plan of a push is, the execution ends with the arm held "
+        "(beyond, some world throws the cube)", minimum=1.0)
     waypoint_fraction: float = setting("a push whose plan to the goal is not sturdy (PlanResult.sturdy), with pushes "
                                        "left after it, is planned again to this fraction of the way there, and that "
                                        "plan taken if it is sturdy (0: never)", minimum=0.0)
