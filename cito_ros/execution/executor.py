@@ -15,11 +15,10 @@ come to rest; then the push is judged by the camera: at the goal, done; else, wh
 way it came), and a new push is planned from there meanwhile, made once the arm is there and only if the model
 predicts it brings the cube closer (both errors against their tolerances) and moves it by more than
 executor.predicted_moved_fraction of them), `done`. A cube at rest within the tolerances but turned by more than
-executor.polish_orientation_rad allows is pushed again, where a push sturdy to that yaw is found (goal.polishing);
-where none is, it is done, a success. An execution begun with the arm against the cube (where the last one
-ended or was cancelled) begins `retreating` to the start pose of settings.beta. Measurements older than
-executor.stale_after_s, a cancel, the time limit, a cube seen tipped past its edge or a push that cannot be planned
-end the execution with the arm held where it is.
+executor.polish_orientation_rad allows is pushed again where a push sturdy to that yaw is found (goal.polishing),
+else it is done, a success. An execution begun with the arm against the cube (where the last ended or was cancelled)
+begins `retreating` to the start pose of settings.beta. Stale measurements, a cancel, the time limit, a cube tipped
+past its edge, or no push that can be planned or is safe to make (planning.compute) end it with the arm held.
 """
 from __future__ import annotations
 
@@ -315,7 +314,7 @@ class Executor:
                 if job.kind == "plan" and outcome.ending is not Ending.NUMERICAL_ERROR and \
                         self._polished(job, outcome.message):
                     return None
-                ending, cause = outcome.ending, None
+                ending, cause = outcome.ending, outcome.cause
                 if ending is Ending.INVALID_REQUEST and self.pushes:  # the goal was posed; no next push reaches it
                     ending, cause = Ending.TASK_NOT_ACHIEVED, "no_push_from_here"
                 self._end(ending, outcome.message, None if self._joints is None else self._joints.q, cause)
@@ -398,3 +397,4 @@ class Job:
 class Failure:
     ending: Ending
     message: str
+    cause: str | None = None  # Executor.cause where the ending alone does not say why

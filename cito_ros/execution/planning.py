@@ -113,9 +113,11 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
         return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found is sturdy to within "
                                                  f"{executor.polish_orientation_rad:g} rad")
     if result.worst_world > executor.max_world_ratio:
-        return Failure(Ending.INVALID_REQUEST, f"no push found keeps the cube within {executor.max_world_ratio:g} "
-                                               f"times the tolerances in every check world (the push the model has "
-                                               f"nearest the goal: {result.worst_world:.3g} times)")
+        # not a refusal: the goal may be reachable, only no push found here is safe to make
+        return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found keeps the cube within {executor.max_world_ratio:g} "
+                                                 f"times the tolerances in every check world (the push the model "
+                                                 f"has nearest the goal: {result.worst_world:.3g} times)",
+                       "no_safe_push")
     policy = _policy(settings, goal, job, request, result, scales)
     if polish or job.pushes_left >= executor.max_pushes - 1 or \
             predict(settings, model.scene, goal, job.object_pose, policy).closer:
