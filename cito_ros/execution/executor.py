@@ -54,7 +54,7 @@ class Ending(enum.Enum):
 
     SUCCEEDED = "succeeded"
     INVALID_REQUEST = "invalid_request"          # a push could not be planned from where things are
-    TASK_NOT_ACHIEVED = "task_not_achieved"      # the pushes are spent, or no push would bring the cube closer
+    TASK_NOT_ACHIEVED = "task_not_achieved"      # pushes spent, or no push found brings the cube closer or is safe
     CANCELLED = "cancelled"
     TIME_LIMIT = "time_limit"
     STALE_MEASUREMENTS = "stale_measurements"
