@@ -112,7 +112,7 @@ def compute(settings: Settings, goal: ExecuteGoal, job: Job) -> Policy | Failure
     if polish and not result.sturdy:
         return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found is sturdy to within "
                                                  f"{executor.polish_orientation_rad:g} rad")
-    if result.worst_world > executor.max_world_ratio:
+    if _throws(settings, result):
         # not a refusal: the goal may be reachable, only no push found here is safe to make
         return Failure(Ending.TASK_NOT_ACHIEVED, f"no push found keeps the cube within {executor.max_world_ratio:g} "
                                                  f"times the tolerances in every check world (the push the model "
@@ -154,12 +154,18 @@ def _moves(settings: Settings, result: PlanResult) -> bool:
     return moved_beyond(settings, *_cube_moved(result), settings.executor.predicted_moved_fraction)
 
 
+def _throws(settings: Settings, result: PlanResult) -> bool:
+    """Whether a plan's worst check world ends beyond executor.max_world_ratio times the tolerances: a push some
+    world throws the cube with."""
+    return result.worst_world > settings.executor.max_world_ratio
+
+
 def _predicted(settings: Settings, goal: ExecuteGoal, result: PlanResult) -> tuple[bool, bool, float]:
     """A plan's standing against the goal, lower better: one whose worst check world ends beyond
     executor.max_world_ratio last, then one beyond the arm's limits, then the model's tolerance ratio of where it
     leaves the cube."""
     metrics, (_, end) = result.metrics, _cube_moved(result)
-    return result.worst_world > settings.executor.max_world_ratio, \
+    return _throws(settings, result), \
         not within_limits(metrics.max_joint_speed_ratio, metrics.joint_range_excess_rad), \
         tolerance_ratio(*goal.errors(*end), settings.task)
 
